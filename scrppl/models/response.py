@@ -1,0 +1,179 @@
+"""`ResponseModel`: the posterior predictive of a viewpoint detection model, as arrays.
+
+A viewpoint detection model says how a detector's (transformed) response ``f`` is distributed for an
+object of class ``o`` seen from relative azimuth ``a``, elevation ``e`` and scale ``s``:
+``p(f | o, a, e, s)`` (Meger et al. 2010, Sec. III-A). Every model in scrppl -- the paper's per-view
+Gaussian and the hierarchical Bayesian model fitted by MCMC -- is summarised by ``N`` posterior draws of
+
+* ``mu[n, o, a, e, s]``    the class-and-view mean response,
+* ``sigma[n, o, a, e, s]`` the within-instance noise standard deviation,
+* ``tau[n, o]``            the standard deviation of the instance effect ``u ~ Normal(0, tau)`` that all
+  views of one object share,
+
+so that for draw ``n`` and a *new* instance, ``f = mu + u + sigma * eps``. The paper's model is the
+special case ``N = 1``, ``tau = 0``.
+
+The belief filters and planners consume a ``ResponseModel`` only through :func:`log_prob` and
+:func:`sample` (naive Bayes) or through the per-draw arrays (the instance-aware filter), so both kinds of
+model plug into every filter and planner.
+
+Class index convention: ``o = 0`` is "target absent" (negatives), ``o = 1`` "target present".
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import logsumexp
+
+__all__ = ["ResponseModel", "log_prob", "sample", "predictive_moments", "check_response_model"]
+
+
+class ResponseModel(NamedTuple):
+    """Posterior draws of a viewpoint detection model (a JAX pytree).
+
+    Attributes
+    ----------
+    mu
+        Mean response, shape ``(N, O, A, E, S)``.
+    sigma
+        Within-instance noise sd, shape ``(N, O, A, E, S)``; strictly positive.
+    tau
+        Instance-effect sd, shape ``(N, O)``; zero for the paper's model.
+    """
+
+    mu: jax.Array
+    sigma: jax.Array
+    tau: jax.Array
+
+    @property
+    def n_draws(self) -> int:
+        """Number of posterior draws ``N``."""
+        return self.mu.shape[0]
+
+    @property
+    def n_classes(self) -> int:
+        """Number of classes ``O``."""
+        return self.mu.shape[1]
+
+    @property
+    def grid_shape(self) -> tuple[int, int, int]:
+        """``(A, E, S)`` of the view grid the model was fitted on."""
+        return tuple(self.mu.shape[2:5])
+
+
+def check_response_model(model: ResponseModel, grid_shape: tuple[int, int, int] | None = None) -> None:
+    """Raise ``ValueError`` naming the problem if ``model`` is malformed or fitted on another grid.
+
+    Parameters
+    ----------
+    model
+        The model to check (concrete arrays, not traced).
+    grid_shape
+        If given, the ``(A, E, S)`` the caller's view grid has.
+    """
+    mu, sigma, tau = (np.asarray(x) for x in model)
+    if mu.ndim != 5:
+        raise ValueError(f"ResponseModel.mu must have shape (N, O, A, E, S), got {mu.shape}")
+    if sigma.shape != mu.shape:
+        raise ValueError(f"ResponseModel.sigma shape {sigma.shape} differs from mu {mu.shape}")
+    if tau.shape != mu.shape[:2]:
+        raise ValueError(f"ResponseModel.tau must have shape {mu.shape[:2]} (N, O), got {tau.shape}")
+    for name, x in (("mu", mu), ("sigma", sigma), ("tau", tau)):
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"ResponseModel.{name} contains NaN or infinite values")
+    if np.any(sigma <= 0):
+        raise ValueError("ResponseModel.sigma must be strictly positive")
+    if np.any(tau < 0):
+        raise ValueError("ResponseModel.tau must be non-negative")
+    if grid_shape is not None and tuple(grid_shape) != tuple(mu.shape[2:5]):
+        raise ValueError(
+            f"response model was fitted on a view grid of shape {tuple(mu.shape[2:5])} (A, E, S) "
+            f"but is used with a grid of shape {tuple(grid_shape)}"
+        )
+
+
+def _gather(model: ResponseModel, o, a, e, s):
+    """Per-draw parameters at the given state/view; leading axis N, then the broadcast shape."""
+    mu = model.mu[:, o, a, e, s]
+    sigma = model.sigma[:, o, a, e, s]
+    tau = jnp.broadcast_to(model.tau[:, o], jnp.broadcast_shapes(model.tau[:, o].shape, mu.shape))
+    return mu, sigma, tau
+
+
+def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
+    """Posterior-predictive log density of a response from a *new* instance.
+
+    ``log p(f | o, a, e, s) = log (1/N) sum_n Normal(f; mu_n, sqrt(sigma_n^2 + tau_n^2))`` -- the
+    instance effect is integrated out in closed form and the draws are mixed.
+
+    Parameters
+    ----------
+    model
+        The response model.
+    f
+        Response(s), any shape broadcastable with the indices.
+    o, a, e, s
+        Integer class, relative azimuth, elevation and scale indices (broadcast together with ``f``).
+
+    Returns
+    -------
+    Array of the broadcast shape of ``f, o, a, e, s``.
+    """
+    o, a, e, s = (jnp.asarray(x) for x in (o, a, e, s))
+    shape = jnp.broadcast_shapes(jnp.shape(f), o.shape, a.shape, e.shape, s.shape)
+    o, a, e, s = (jnp.broadcast_to(x, shape) for x in (o, a, e, s))
+    mu, sigma, tau = _gather(model, o, a, e, s)
+    var = sigma**2 + tau**2
+    z = (jnp.broadcast_to(f, shape)[None] - mu) ** 2 / var
+    lp = -0.5 * (z + jnp.log(var) + math.log(2 * math.pi))
+    return logsumexp(lp, axis=0) - math.log(model.mu.shape[0])
+
+
+def predictive_moments(model: ResponseModel, o, a, e=0, s=0) -> tuple[jax.Array, jax.Array]:
+    """Mean and variance of the posterior predictive for a new instance (law of total variance)."""
+    mu, sigma, tau = _gather(model, jnp.asarray(o), jnp.asarray(a), jnp.asarray(e), jnp.asarray(s))
+    mean = mu.mean(axis=0)
+    var = (sigma**2 + tau**2).mean(axis=0) + mu.var(axis=0)
+    return mean, var
+
+
+def sample(key: jax.Array, model: ResponseModel, o, a, e=0, s=0, shape: tuple[int, ...] = ()) -> jax.Array:
+    """Draw responses of *new* instances from the posterior predictive.
+
+    Each sample picks a posterior draw uniformly, an instance effect ``u ~ Normal(0, tau)`` and noise
+    ``sigma * eps``. Samples are independent (each from its own new instance).
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key.
+    model
+        The response model.
+    o, a, e, s
+        Integer indices, broadcast together to a shape ``B``.
+    shape
+        Leading sample shape.
+
+    Returns
+    -------
+    Array of shape ``shape + B``.
+    """
+    o, a, e, s = (jnp.asarray(x) for x in (o, a, e, s))
+    batch = jnp.broadcast_shapes(o.shape, a.shape, e.shape, s.shape)
+    out_shape = tuple(shape) + batch
+    k_draw, k_u, k_eps = jax.random.split(key, 3)
+    n = jax.random.randint(k_draw, out_shape, 0, model.mu.shape[0])
+    o, a, e, s = (jnp.broadcast_to(x, out_shape) for x in (o, a, e, s))
+    mu = model.mu[n, o, a, e, s]
+    sigma = model.sigma[n, o, a, e, s]
+    tau = model.tau[n, o]
+    return (
+        mu
+        + tau * jax.random.normal(k_u, out_shape, mu.dtype)
+        + sigma * jax.random.normal(k_eps, out_shape, mu.dtype)
+    )
