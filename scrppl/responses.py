@@ -71,7 +71,9 @@ def empty_response_table(
     shape = (len(detectors), len(targets), len(categories), n_instances, *grid.shape)
     split = np.asarray(split, dtype=object)
     if split.shape != (len(categories), n_instances):
-        raise ValueError(f"split must have shape {(len(categories), n_instances)}, got {split.shape}")
+        raise ValueError(
+            f"split must have shape {(len(categories), n_instances)}, got {split.shape}"
+        )
     ds = xr.Dataset(
         {
             "score": (DIMS, np.full(shape, np.nan, dtype=np.float64)),
@@ -108,7 +110,9 @@ def validate_response_table(ds: xr.Dataset, allow_missing: bool = True) -> None:
     if "score" not in ds:
         raise ValueError("response table has no 'score' variable")
     if tuple(ds["score"].dims) != DIMS:
-        raise ValueError(f"response table 'score' dims must be {DIMS}, got {tuple(ds['score'].dims)}")
+        raise ValueError(
+            f"response table 'score' dims must be {DIMS}, got {tuple(ds['score'].dims)}"
+        )
     if "split" not in ds or tuple(ds["split"].dims) != ("category", "instance"):
         raise ValueError("response table needs a 'split' variable with dims (category, instance)")
     grid = table_grid(ds)
@@ -117,7 +121,9 @@ def validate_response_table(ds: xr.Dataset, allow_missing: bool = True) -> None:
         raise ValueError(f"response table view axes {got} do not match its grid {grid.shape}")
     bad = set(np.unique(ds["split"].values.astype(str))) - {*SPLITS, ""}
     if bad:
-        raise ValueError(f"response table has unknown split labels {sorted(bad)}; expected {SPLITS}")
+        raise ValueError(
+            f"response table has unknown split labels {sorted(bad)}; expected {SPLITS}"
+        )
     score = ds["score"].values
     if np.isinf(score).any():
         raise ValueError("response table contains infinite scores")

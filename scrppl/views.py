@@ -191,7 +191,9 @@ def azimuth_degrees(a: Any, n_azimuth: int = 8) -> Any:
 def degrees_to_azimuth(deg: Any, n_azimuth: int = 8) -> Any:
     """Nearest azimuth bin to an angle in degrees (any real angle, wrapped)."""
     step = 360.0 / n_azimuth
-    return (np.floor(wrap_degrees(np.asarray(deg, dtype=float)) / step + 0.5).astype(int)) % n_azimuth
+    return (
+        np.floor(wrap_degrees(np.asarray(deg, dtype=float)) / step + 0.5).astype(int)
+    ) % n_azimuth
 
 
 def angular_distance(a: Any, b: Any, n_azimuth: int = 8) -> Any:

@@ -19,7 +19,9 @@ def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
         help=f"dataset location (default: ${CACHE_ENV} or the user cache directory, "
         "one folder per profile and seed)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed; the same seed gives the same numbers")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed; the same seed gives the same numbers"
+    )
     parser.add_argument(
         "--profile",
         choices=PROFILES,

@@ -66,7 +66,9 @@ class ResponseModel(NamedTuple):
         return tuple(self.mu.shape[2:5])
 
 
-def check_response_model(model: ResponseModel, grid_shape: tuple[int, int, int] | None = None) -> None:
+def check_response_model(
+    model: ResponseModel, grid_shape: tuple[int, int, int] | None = None
+) -> None:
     """Raise ``ValueError`` naming the problem if ``model`` is malformed or fitted on another grid.
 
     Parameters
@@ -82,7 +84,9 @@ def check_response_model(model: ResponseModel, grid_shape: tuple[int, int, int] 
     if sigma.shape != mu.shape:
         raise ValueError(f"ResponseModel.sigma shape {sigma.shape} differs from mu {mu.shape}")
     if tau.shape != mu.shape[:2]:
-        raise ValueError(f"ResponseModel.tau must have shape {mu.shape[:2]} (N, O), got {tau.shape}")
+        raise ValueError(
+            f"ResponseModel.tau must have shape {mu.shape[:2]} (N, O), got {tau.shape}"
+        )
     for name, x in (("mu", mu), ("sigma", sigma), ("tau", tau)):
         if not np.all(np.isfinite(x)):
             raise ValueError(f"ResponseModel.{name} contains NaN or infinite values")
@@ -142,7 +146,9 @@ def predictive_moments(model: ResponseModel, o, a, e=0, s=0) -> tuple[jax.Array,
     return mean, var
 
 
-def sample(key: jax.Array, model: ResponseModel, o, a, e=0, s=0, shape: tuple[int, ...] = ()) -> jax.Array:
+def sample(
+    key: jax.Array, model: ResponseModel, o, a, e=0, s=0, shape: tuple[int, ...] = ()
+) -> jax.Array:
     """Draw responses of *new* instances from the posterior predictive.
 
     Each sample picks a posterior draw uniformly, an instance effect ``u ~ Normal(0, tau)`` and noise

@@ -1,0 +1,29 @@
+"""Multiview object-category datasets: the index, the Savarese loader and the synthetic dataset.
+
+The index is `MultiviewDataset`.
+
+The loaders and generators are imported lazily by their submodules (``scrppl.datasets.savarese``,
+``scrppl.datasets.synthetic``) because they pull in OpenCV and the renderer.
+"""
+
+from scrppl.datasets.core import (
+    DEFAULT_SPLIT_PROPORTIONS,
+    INDEX_COLUMNS,
+    SPLITS,
+    MultiviewDataset,
+    assign_splits,
+    bbox_from_mask,
+    read_ascii_mask,
+    write_ascii_mask,
+)
+
+__all__ = [
+    "DEFAULT_SPLIT_PROPORTIONS",
+    "INDEX_COLUMNS",
+    "SPLITS",
+    "MultiviewDataset",
+    "assign_splits",
+    "bbox_from_mask",
+    "read_ascii_mask",
+    "write_ascii_mask",
+]
