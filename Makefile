@@ -1,0 +1,41 @@
+# scrppl: the two commands a newcomer needs are `make reproduce` and `make test`.
+# Both create .venv from environment.lock first when it is missing (or older than the lock).
+
+SHELL := /bin/bash
+VENV := .venv
+STAMP := $(VENV)/.installed
+OUT ?= results
+PROFILE ?= full
+SEED ?= 0
+# Test workers: pytest-xdist processes (2 suits a 2-core machine).
+WORKERS ?= 2
+
+.PHONY: help reproduce quick test lint lock book clean-results
+
+help:
+	@echo "make reproduce   the whole pipeline on the embedded default dataset -> $(OUT)/ (PROFILE=quick for a short run)"
+	@echo "make test        the test suite"
+	@echo "make lint        ruff"
+	@echo "make lock        regenerate environment.lock from pyproject.toml (needs uv, installed in .venv)"
+
+$(STAMP): environment.lock
+	@bash scripts/make-venv.sh
+
+reproduce: $(STAMP)
+	$(VENV)/bin/scrppl reproduce --out $(OUT) --profile $(PROFILE) --seed $(SEED)
+
+quick: $(STAMP)
+	$(VENV)/bin/scrppl reproduce --out $(OUT)-quick --profile quick --seed $(SEED)
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -n $(WORKERS) -q
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+lock: $(STAMP)
+	$(VENV)/bin/uv pip compile pyproject.toml --extra test --extra book --extra dev \
+		--generate-hashes --python-version 3.12 -o environment.lock
+
+clean-results:
+	rm -rf $(OUT) $(OUT)-quick

@@ -1,0 +1,89 @@
+import argparse
+import json
+import os
+import time
+
+import pytest
+
+from scrppl._io import atomic_path, default_cache_dir
+from scrppl.cli import build_parser, main
+from scrppl.cli.reproduce import Stage, is_current, stages
+from scrppl.report import write_report
+
+
+def test_atomic_path_replaces_on_success(tmp_path):
+    target = tmp_path / "sub" / "x.json"
+    with atomic_path(target) as tmp:
+        assert tmp.suffix == ".json" and tmp.parent == target.parent and tmp != target
+        tmp.write_text("new")
+    assert target.read_text() == "new"
+    assert [p.name for p in target.parent.iterdir()] == ["x.json"]
+
+
+def test_atomic_path_keeps_old_file_when_body_fails(tmp_path):
+    target = tmp_path / "x.txt"
+    target.write_text("old")
+    with pytest.raises(RuntimeError, match="boom"):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half-written")
+            raise RuntimeError("boom")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]  # no temporary left behind
+
+
+def test_cache_dir_follows_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv("SCRPPL_CACHE", str(tmp_path / "c"))
+    assert default_cache_dir() == tmp_path / "c"
+
+
+def test_is_current_compares_modification_times(tmp_path):
+    inp, outp = tmp_path / "in", tmp_path / "out"
+    stage = Stage("s", "m", (), (inp,), (outp,))
+    assert not is_current(stage)  # output missing
+    inp.write_text("a")
+    outp.write_text("b")
+    now = time.time()
+    os.utime(inp, (now - 10, now - 10))
+    os.utime(outp, (now, now))
+    assert is_current(stage)
+    os.utime(inp, (now + 10, now + 10))  # input changed after the output was made
+    assert not is_current(stage)
+
+
+def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
+    args = argparse.Namespace(root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick")
+    chain = stages(args)
+    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate"]
+    for before, after in zip(chain, chain[1:], strict=False):
+        assert set(after.inputs) <= set(before.outputs), (before.name, after.name)
+    for s in chain:
+        for argv in s.argv:
+            assert "--seed" in argv and "3" in argv
+
+
+def test_report_lists_numbers_and_figures(tmp_path):
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "fig5-car.png").write_bytes(b"\x89PNG")
+    (tmp_path / "figures" / "other.png").write_bytes(b"\x89PNG")
+    (tmp_path / "simulate-summary.json").write_text(json.dumps({"views_to_confidence": 2.5}))
+    path = write_report(tmp_path, profile="quick", seed=1)
+    text = path.read_text()
+    assert "views_to_confidence" in text and "2.5" in text
+    assert text.index("fig5-car") < text.index("other")  # paper figures first
+    assert "--profile quick --seed 1" in text
+
+
+def test_every_subcommand_has_help(capsys):
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert "reproduce" in sub.choices
+    for name in sub.choices:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        assert "usage: scrppl" in capsys.readouterr().out
+
+
+def test_no_command_prints_help_and_fails(capsys):
+    assert main([]) == 2
+    assert "usage: scrppl" in capsys.readouterr().out
