@@ -20,8 +20,13 @@ from scrppl.detectors.base import (
     read_detector_meta,
     training_images,
 )
+from scrppl.detectors.sift import BagOfFeatures, SiftFeatures, SiftMatcher, extract_sift
 
 __all__ = [
+    "BagOfFeatures",
+    "SiftFeatures",
+    "SiftMatcher",
+    "extract_sift",
     "CANONICAL_AZIMUTHS",
     "FORMAT_VERSION",
     "Detection",

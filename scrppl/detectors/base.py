@@ -123,7 +123,9 @@ def as_rgb_image(image: np.ndarray | str | Path) -> np.ndarray:
     if arr.ndim == 2:
         arr = np.repeat(arr[:, :, None], 3, axis=2)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise ValueError(f"unreadable image: expected an (H, W, 3) RGB array, got shape {arr.shape}")
+        raise ValueError(
+            f"unreadable image: expected an (H, W, 3) RGB array, got shape {arr.shape}"
+        )
     if arr.dtype != np.uint8:
         if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
             raise ValueError(f"unreadable image: dtype {arr.dtype} or non-finite pixel values")
