@@ -1,0 +1,211 @@
+"""Planners: sampled expected entropy converges to the quadrature value, which matches SciPy integration."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate, stats
+from scipy.special import logsumexp
+
+from scrppl import belief as B
+from scrppl import planning as P
+from scrppl.models.response import ResponseModel
+
+
+def random_model(rng, n=2, o=2, a=4, e=2, s=2, tau=0.5):
+    mu = rng.normal(0.0, 1.5, size=(n, o, a, e, s))
+    sigma = rng.uniform(0.4, 1.0, size=(n, o, a, e, s))
+    tau = np.full((n, o), tau) * rng.uniform(0.5, 1.5, size=(n, o))
+    return ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+
+
+def observed_belief(rng, kind, model, k=2):
+    a, e, s = model.mu.shape[2:]
+    b = B.init_belief(kind, model)
+    for _ in range(k):
+        b = B.update(model, b, jnp.float32(rng.normal()), int(rng.integers(a)), int(rng.integers(e)),
+                     int(rng.integers(s)))
+    return b
+
+
+def numpy_expected_entropy(mix, objective):
+    """E_f[H(posterior)] by adaptive SciPy quadrature over f, written independently in NumPy."""
+    w = np.exp(np.asarray(mix.log_weight, float))
+    m = np.asarray(mix.mean, float)
+    v = np.asarray(mix.var, float)
+
+    def density_and_entropy(f):
+        comp = w * stats.norm.pdf(f, m, np.sqrt(v))  # (N, O, A)
+        post = comp.sum(0)
+        post = post / post.sum()
+        if objective == "class":
+            post = post.sum(1)
+        elif objective == "pose":
+            post = post.sum(0)
+        return comp.sum(), stats.entropy(post.ravel())
+
+    lo = (m - 12 * np.sqrt(v)).min()
+    hi = (m + 12 * np.sqrt(v)).max()
+    return integrate.quad(
+        lambda f: np.prod(density_and_entropy(f)), lo, hi, limit=400, epsabs=1e-10, epsrel=1e-8
+    )[0]
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+@pytest.mark.parametrize("objective", B.OBJECTIVES)
+def test_quadrature_matches_scipy_integration(rng, kind, objective):
+    model = random_model(rng)
+    b = observed_belief(rng, kind, model)
+    mix = B.predictive_mixture(model, b, 1, 0, 1)
+    exact = float(P.quadrature_expected_entropy(mix, objective, order=48))
+    ref = numpy_expected_entropy(mix, objective)
+    np.testing.assert_allclose(exact, ref, atol=2e-4)
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_sampled_converges_to_quadrature_like_one_over_sqrt_m(rng, key, kind):
+    model = random_model(rng)
+    b = observed_belief(rng, kind, model)
+    mix = B.predictive_mixture(model, b, 2, 1, 0)
+    exact = float(P.quadrature_expected_entropy(mix, "joint", order=48))
+    # per-sample spread of the entropy, from a large independent sample
+    f = P._sample_responses(jax.random.fold_in(key, 99), mix, 4096)
+    sd = float(P.posterior_entropy(mix, f, "joint").std())
+    errors = {}
+    for m in (64, 1024, 16384):
+        keys = jax.random.split(jax.random.fold_in(key, m), 6)
+        est = np.array([P.sampled_expected_entropy(k, mix, m, "joint") for k in keys])
+        # each estimate within 5 standard errors (tolerance scales like 1/sqrt(M))
+        assert np.all(np.abs(np.asarray(est) - exact) < 5 * sd / np.sqrt(m) + 1e-4), (m, est, exact)
+        errors[m] = float(np.sqrt(np.mean((np.asarray(est) - exact) ** 2)))
+    assert errors[16384] < errors[64]
+    assert errors[16384] < 0.01
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_expected_entropy_never_exceeds_current_entropy(rng, kind):
+    model = random_model(rng, tau=0.8)
+    views = jnp.asarray([[phi, e, s] for phi in range(4) for e in range(2) for s in range(2)])
+    for trial in range(3):
+        b = observed_belief(rng, kind, model, k=trial)
+        logj = B.joint_log_belief(b)
+        for objective in B.OBJECTIVES:
+            current = float(B.objective_entropy(logj, objective))
+            h = P.expected_entropies(None, model, b, views, "quadrature", objective, order=24)
+            assert np.all(np.asarray(h) <= current + 1e-5), (objective, current, h)
+
+
+def test_posterior_entropy_matches_filter_update(rng):
+    model = random_model(rng)
+    for kind in B.FILTERS:
+        b = observed_belief(rng, kind, model)
+        mix = B.predictive_mixture(model, b, 3, 1, 1)
+        for f in (-1.0, 0.2, 2.5):
+            after = B.update(model, b, jnp.float32(f), 3, 1, 1)
+            for objective in B.OBJECTIVES:
+                want = float(B.objective_entropy(B.joint_log_belief(after), objective))
+                got = float(P.posterior_entropy(mix, f, objective))
+                np.testing.assert_allclose(got, want, atol=2e-5)
+
+
+def test_plug_in_is_biased(rng):
+    # two equally likely classes with well separated responses: the expected response lies between
+    # them, where it is ambiguous, so the plug-in entropy is far above the true expected entropy.
+    mu = np.zeros((1, 2, 4, 1, 1))
+    mu[0, 1] = 4.0
+    model = ResponseModel(jnp.asarray(mu, jnp.float32), jnp.ones(mu.shape), jnp.zeros((1, 2)))
+    b = B.naive_bayes_init(model)
+    mix = B.predictive_mixture(model, b, 0, 0, 0)
+    exact = float(P.quadrature_expected_entropy(mix, "class"))
+    plug = float(P.plug_in_expected_entropy(mix, "class"))
+    np.testing.assert_allclose(exact, numpy_expected_entropy(mix, "class"), atol=1e-4)
+    np.testing.assert_allclose(plug, np.log(2), atol=1e-5)  # f = 2 is exactly ambiguous
+    assert plug - exact > 0.4
+
+
+def test_candidate_views_and_random_planner(key):
+    a, e, s = 4, 2, 3
+    visited = np.zeros((a, e, s), bool)
+    visited[0, 1, 2] = visited[2, 1, 2] = True
+    available = np.ones((a, e, s), bool)
+    available[3, 1, 2] = False
+    views, valid = P.candidate_views(jnp.array([0, 1, 2]), visited, available, "azimuth")
+    np.testing.assert_array_equal(np.asarray(views), [[0, 1, 2], [1, 1, 2], [2, 1, 2], [3, 1, 2]])
+    np.testing.assert_array_equal(np.asarray(valid), [False, True, False, False])
+    views, valid = P.candidate_views(jnp.array([0, 1, 2]), visited, available, "all")
+    assert views.shape == (a * e * s, 3) and int(valid.sum()) == a * e * s - 3
+    flat = (views[:, 0] * e + views[:, 1]) * s + views[:, 2]
+    np.testing.assert_array_equal(np.asarray(flat), np.arange(a * e * s))
+    # the random planner picks valid candidates uniformly
+    valid = jnp.array([True, False, True, True, False, False])
+    idx = jax.vmap(lambda k: P.random_unseen_view(k, valid)[0])(jax.random.split(key, 6000))
+    counts = np.bincount(np.asarray(idx), minlength=6)
+    assert counts[[1, 4, 5]].sum() == 0
+    assert stats.chisquare(counts[[0, 2, 3]]).pvalue > 1e-3
+    i0, f0 = P.random_unseen_view(key, valid)
+    i1, f1 = P.random_unseen_view(key, valid)
+    assert int(i0) == int(i1) and bool(f0)
+    assert not bool(P.random_unseen_view(key, jnp.zeros(4, bool))[1])
+
+
+def test_choose_view_is_argmin_and_respects_masks_and_motion_cost(rng, key):
+    model = random_model(rng, a=8, e=1, s=1)
+    b = observed_belief(rng, "naive_bayes", model)
+    visited = np.zeros((8, 1, 1), bool)
+    visited[[0, 5], 0, 0] = True
+    available = np.ones((8, 1, 1), bool)
+    available[6] = False
+    current = jnp.array([0, 0, 0])
+    view, found, scores = P.choose_view(key, model, b, current, visited, available, planner="quadrature")
+    views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
+    h = np.array(P.expected_entropies(None, model, b, views, "quadrature"))
+    h[[0, 5, 6]] = np.inf
+    assert bool(found) and int(view[0]) == int(np.argmin(h))
+    np.testing.assert_allclose(np.asarray(scores), h, rtol=1e-5)
+    # a large motion cost makes the nearest valid azimuth win (1 or 7, one bin away)
+    view, _, _ = P.choose_view(key, model, b, current, visited, available, planner="quadrature",
+                               motion_cost=100.0)
+    assert int(view[0]) in (1, 7)
+    # nothing left to see
+    view, found, _ = P.choose_view(key, model, b, current, np.ones((8, 1, 1), bool), available)
+    assert not bool(found)
+    for planner in ("random", "sampled", "plug_in"):
+        view, found, _ = P.choose_view(key, model, b, current, visited, available, planner=planner)
+        assert bool(found) and int(view[0]) not in (0, 5, 6)
+
+
+def test_sampled_planner_agrees_with_quadrature_choice_for_large_m(rng, key):
+    model = random_model(rng, a=8, e=1, s=1, n=1)
+    b = observed_belief(rng, "naive_bayes", model, k=1)
+    views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
+    exact = np.asarray(P.expected_entropies(None, model, b, views, "quadrature", order=48))
+    est = np.asarray(P.expected_entropies(key, model, b, views, "sampled", n_samples=8192))
+    np.testing.assert_allclose(est, exact, atol=0.03)
+
+
+def test_planner_vmaps_over_trials(rng, key):
+    model = random_model(rng, a=8, e=1, s=1)
+    beliefs = [observed_belief(rng, "naive_bayes", model) for _ in range(3)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *beliefs)
+    visited = jnp.zeros((8, 1, 1), bool)
+    available = jnp.ones((8, 1, 1), bool)
+    keys = jax.random.split(key, 3)
+    batched = jax.vmap(
+        lambda k, b: P.choose_view(k, model, b, jnp.array([0, 0, 0]), visited, available)[0]
+    )(keys, stacked)
+    for t in range(3):
+        single = P.choose_view(keys[t], model, beliefs[t], jnp.array([0, 0, 0]), visited, available)[0]
+        np.testing.assert_array_equal(np.asarray(batched[t]), np.asarray(single))
+
+
+def test_bad_planner_arguments(rng, key):
+    model = random_model(rng)
+    b = B.naive_bayes_init(model)
+    m = np.ones((4, 2, 2), bool)
+    with pytest.raises(ValueError, match="unknown planner"):
+        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, planner="greedy")
+    with pytest.raises(ValueError, match="unknown candidate mode"):
+        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, mode="diagonal")
+    with pytest.raises(ValueError, match="unknown objective"):
+        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, objective="colour")
+    assert np.isclose(logsumexp([0.0]), 0.0)
