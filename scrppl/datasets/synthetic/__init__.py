@@ -1,0 +1,1 @@
+"""The synthetic multiview dataset: procedural instances of the Savarese categories, rendered off-screen."""

@@ -1,0 +1,169 @@
+"""Procedural category instances: API, determinism, variation, frame conventions and the viewpoint
+structure of each category, measured on the geometry (no rendering)."""
+
+import numpy as np
+import pytest
+
+from scrppl.datasets.synthetic import textures as tx
+from scrppl.datasets.synthetic.shapes import CATEGORIES, Part, build_instance, instance_bounds
+
+SEEDS = (0, 1, 2, 3, 4, 5)
+IMPLEMENTED = ("cellphone", "monitor", "mouse")  # grows to CATEGORIES
+
+
+def _by_name(parts, name):
+    found = [p for p in parts if p.name == name]
+    assert found, f"no part named {name!r} in {[p.name for p in parts]}"
+    return found
+
+
+def _verts(parts):
+    return np.concatenate([np.asarray(p.mesh.vertices)[np.unique(p.mesh.faces)] for p in parts])
+
+
+@pytest.fixture(scope="module")
+def instances():
+    return {(c, s): build_instance(c, s) for c in IMPLEMENTED for s in SEEDS}
+
+
+def test_categories_are_the_savarese_ten():
+    assert CATEGORIES == (
+        "bicycle", "car", "cellphone", "head", "iron", "monitor", "mouse", "shoe", "stapler", "toaster"
+    )
+
+
+def test_unknown_category_and_bad_seed_raise():
+    with pytest.raises(ValueError, match="unknown category 'airplane'"):
+        build_instance("airplane", 0)
+    with pytest.raises(ValueError, match="seed"):
+        build_instance("car", -1)
+
+
+@pytest.mark.parametrize("category", IMPLEMENTED)
+def test_deterministic_from_seed(category, instances):
+    a, b = instances[(category, 3)], build_instance(category, 3)
+    assert [p.name for p in a] == [p.name for p in b]
+    for pa, pb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(pa.mesh.vertices, pb.mesh.vertices)
+        np.testing.assert_array_equal(pa.mesh.faces, pb.mesh.faces)
+        assert pa.color == pb.color and pa.specular == pb.specular
+        if pa.texture is not None:
+            np.testing.assert_array_equal(pa.texture, pb.texture)
+            np.testing.assert_array_equal(pa.uv, pb.uv)
+
+
+@pytest.mark.parametrize("category", IMPLEMENTED)
+def test_instances_vary_with_seed(category, instances):
+    """Different seeds give different proportions (bounding-box aspect ratios) and looks."""
+    extents = np.array([np.ptp(instance_bounds(instances[(category, s)]), axis=0) for s in SEEDS])
+    # the largest extent is normalised to 1, so variation shows in the other two ratios
+    assert np.ptp(extents, axis=0).max() > 0.03, extents
+    colors = {tuple(np.round(instances[(category, s)][0].color, 3)) for s in SEEDS}
+    textures = {
+        p.texture.tobytes()[:4096]
+        for s in SEEDS
+        for p in instances[(category, s)]
+        if p.texture is not None
+    }
+    assert len(colors) + len(textures) > len(SEEDS), "instances look alike"
+
+
+@pytest.mark.parametrize("category", IMPLEMENTED)
+def test_frame_conventions(category, instances):
+    for seed in SEEDS:
+        parts = instances[(category, seed)]
+        assert all(isinstance(p, Part) for p in parts)
+        lo, hi = instance_bounds(parts)
+        assert lo[2] == pytest.approx(0.0, abs=1e-9), "stands on z = 0"
+        assert 0.5 * (lo[0] + hi[0]) == pytest.approx(0.0, abs=1e-9)
+        assert 0.5 * (lo[1] + hi[1]) == pytest.approx(0.0, abs=1e-9)
+        assert np.max(hi - lo) == pytest.approx(1.0, abs=1e-9)
+        n_faces = sum(len(p.mesh.faces) for p in parts)
+        assert 12 <= n_faces <= 6000, f"{category} {seed}: {n_faces} triangles"
+        for p in parts:
+            assert len(p.mesh.faces) > 0
+            assert np.all(np.isfinite(p.mesh.vertices))
+            assert np.all(np.isfinite(p.mesh.face_normals))
+            assert np.all(np.isfinite(p.mesh.vertex_normals))
+            assert np.all(p.mesh.faces < len(p.mesh.vertices))
+            assert 0.0 <= p.specular <= 1.0
+            assert len(p.color) == 3 and all(0.0 <= c <= 1.0 for c in p.color)
+            if p.texture is not None:
+                assert p.texture.dtype == np.uint8 and p.texture.ndim == 3
+                assert p.texture.shape[2] == 3 and min(p.texture.shape[:2]) >= 8
+                assert p.uv.shape == (len(p.mesh.vertices), 2)
+                assert np.all((p.uv >= 0.0) & (p.uv <= 1.0))
+
+
+@pytest.mark.parametrize("category", IMPLEMENTED)
+def test_closed_parts_face_outward(category, instances):
+    """Watertight parts have positive volume: their normals point out, so lighting is right."""
+    for seed in SEEDS[:3]:
+        for p in instances[(category, seed)]:
+            if p.mesh.is_watertight:
+                assert p.mesh.volume > 0, f"{category} {seed} part {p.name!r} is inside out"
+
+
+def _area_weighted_normal(mesh):
+    return (np.asarray(mesh.face_normals) * np.asarray(mesh.area_faces)[:, None]).sum(0)
+
+
+@pytest.mark.parametrize("category", ["monitor", "cellphone"])
+def test_screen_faces_front_only(category, instances):
+    for seed in SEEDS:
+        parts = instances[(category, seed)]
+        (screen,) = _by_name(parts, "screen")
+        n = _area_weighted_normal(screen.mesh)
+        n /= np.linalg.norm(n)
+        assert n[0] > 0.9, n  # looks along +x (a phone leans back a little)
+        # the screen sits on the front of the body (the phone's slab, the monitor's housing)
+        body = [p for p in parts if p.name in ("body", "housing")][0]
+        assert screen.mesh.vertices[:, 0].mean() > body.mesh.vertices[:, 0].mean() + 1e-3
+        # no other textured part faces backwards with screen content
+        for p in parts:
+            if p.texture is not None and p is not screen:
+                assert _area_weighted_normal(p.mesh)[0] >= -1e-9 or p.name in ("dock",)
+
+
+def test_mouse_buttons_and_cable_at_front(instances):
+    for seed in SEEDS:
+        parts = instances[("mouse", seed)]
+        (wheel,) = _by_name(parts, "wheel")
+        (shell,) = _by_name(parts, "shell")
+        xs = shell.mesh.vertices[:, 0]
+        assert wheel.mesh.vertices[:, 0].mean() > 0.5 * (xs.min() + xs.max())
+        for cable in [p for p in parts if p.name == "cable"]:
+            assert cable.mesh.vertices[:, 0].min() > xs.max() - 0.02
+        # the highest point of the body is behind its middle
+        top = shell.mesh.vertices[np.argmax(shell.mesh.vertices[:, 2])]
+        assert top[0] < 0.5 * (xs.min() + xs.max())
+
+
+def test_textures_are_deterministic_and_seed_dependent():
+    for fn in (
+        lambda s: tx.screen(s, 60, 80),
+        lambda s: tx.phone_screen(s, 80, 40),
+        lambda s: tx.label(s, (1, 1, 1), (0, 0, 0)),
+        lambda s: tx.tread(s),
+        lambda s: tx.face(s, (0.8, 0.6, 0.5), (0.2, 0.1, 0.05)),
+        lambda s: tx.wood(s),
+    ):
+        a, b, c = fn(7), fn(7), fn(8)
+        assert a.dtype == np.uint8 and a.ndim == 3 and a.shape[2] == 3
+        np.testing.assert_array_equal(a, b)
+        assert not np.array_equal(a, c)
+    with pytest.raises(ValueError, match="screen kind"):
+        tx.screen(0, kind="hologram")
+
+
+def test_face_texture_puts_the_face_at_the_centre_column():
+    """u = 0.5 is the face (+x): skin with dark pupils there, hair at the back (u = 0 and 1)."""
+    skin, hair = np.array([0.8, 0.6, 0.5]), np.array([0.2, 0.1, 0.05])
+    img = tx.face(3, skin, hair, "long").astype(float) / 255.0
+    h, w = img.shape[:2]
+    band = img[h // 3 : 2 * h // 3]  # between the mouth and the eyebrows
+    centre = band[:, int(0.4 * w) : int(0.6 * w)].reshape(-1, 3)
+    back = np.concatenate([band[:, : int(0.08 * w)], band[:, int(0.92 * w) :]], 1).reshape(-1, 3)
+    np.testing.assert_allclose(np.median(centre, 0), skin, atol=0.08)
+    np.testing.assert_allclose(np.median(back, 0), hair, atol=0.08)
+    assert centre.max(1).min() < 0.15  # pupils
