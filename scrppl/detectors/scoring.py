@@ -1,0 +1,329 @@
+"""The response table: every detector x every target x every image (Meger et al. 2010, Sec. III-A).
+
+:func:`score_dataset` fills the table of :mod:`scrppl.responses` with ``detector.score(image, box)`` for
+every trained detector and every image of a :class:`~scrppl.datasets.core.MultiviewDataset`:
+
+* **Shared features.** An image's proto-object features (``prepare``) do not depend on the target, so they
+  are computed once per image and *feature key* -- a detector's ``feature_key`` attribute if it has one
+  (SIFT and bag-of-features with equal settings share SIFT features), otherwise ``(family, id of the first
+  detector)`` -- and reused by every target's detector of that group.
+* **Resumable.** Work is done in chunks of one instance (all its views). After each finished chunk the
+  partial table is written atomically to ``<path>.partial.nc`` together with the list of finished chunks;
+  a later call with the same detectors, targets and dataset resumes from it, scoring only the chunks not
+  yet finished. When everything is scored the table is written to ``path`` and the partial file removed.
+* **Parallel.** With ``workers > 1`` chunks are scored in that many spawned processes (each single-threaded
+  for BLAS/OpenCV); the main process collects results and checkpoints.
+
+Views an instance lacks stay NaN; a ``(detector, target)`` pair absent from ``detectors`` stays NaN too.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import xarray as xr
+
+from scrppl._io import atomic_path
+from scrppl.responses import empty_response_table, save_response_table, validate_response_table
+
+if TYPE_CHECKING:  # pragma: no cover
+    from scrppl.datasets.core import MultiviewDataset
+    from scrppl.detectors.base import Detector
+
+__all__ = ["score_dataset", "partial_path", "score_chunk", "response_table_for"]
+
+Chunk = tuple[str, int]
+
+
+def partial_path(path: str | Path) -> Path:
+    """Where :func:`score_dataset` checkpoints an unfinished table for ``path``."""
+    path = Path(path)
+    return path.with_name(path.stem + ".partial.nc")
+
+
+def response_table_for(
+    dataset: MultiviewDataset, families: Iterable[str], targets: Iterable[str]
+) -> xr.Dataset:
+    """An all-NaN response table shaped for ``dataset`` (categories, instances, splits, grid)."""
+    categories = dataset.categories
+    targets = list(targets)
+    unknown = [t for t in targets if t not in categories]
+    if unknown:
+        raise ValueError(f"unknown category {unknown[0]!r} as target; the dataset has {categories}")
+    inst = dataset.instances
+    n_instances = int(inst["instance"].max()) + 1
+    split = np.full((len(categories), n_instances), "", dtype=object)
+    for c, i, s in zip(inst["category"], inst["instance"], inst["split"], strict=True):
+        split[categories.index(c), int(i)] = s
+    return empty_response_table(
+        list(families), targets, categories, n_instances, dataset.grid, split
+    )
+
+
+def _feature_key(det: Detector) -> Any:
+    key = getattr(det, "feature_key", None)
+    return ("key", key) if key is not None else ("family", det.family, id(det))
+
+
+def _groups(detectors: Mapping[str, Mapping[str, Detector]]) -> list[tuple[Detector, list]]:
+    """Group (family, target, detector) by feature key: ``[(preparer, [(fi, ti, det), ...]), ...]``."""
+    families = list(detectors)
+    targets = sorted({t for d in detectors.values() for t in d})
+    groups: dict[Any, tuple[Detector, list]] = {}
+    for fi, fam in enumerate(families):
+        for target, det in detectors[fam].items():
+            key = _feature_key(det)
+            if key not in groups:
+                groups[key] = (det, [])
+            groups[key][1].append((fi, targets.index(target), det))
+    return list(groups.values())
+
+
+def score_chunk(
+    dataset: MultiviewDataset,
+    groups: list[tuple[Detector, list]],
+    chunk: Chunk,
+    shape: tuple[int, int],
+) -> tuple[np.ndarray, dict[str, float]]:
+    """Scores of every detector on every view of one instance.
+
+    Parameters
+    ----------
+    dataset
+        The dataset.
+    groups
+        Output of the internal grouping: detectors sharing ``prepare``.
+    chunk
+        ``(category, instance)``.
+    shape
+        ``(n_detectors, n_targets)``.
+
+    Returns
+    -------
+    scores
+        ``(n_detectors, n_targets, A, E, S)`` with NaN where a view is missing or a pair is absent.
+    seconds
+        Time spent loading images, preparing features and scoring (for the benchmark).
+    """
+    category, instance = chunk
+    grid = dataset.grid
+    out = np.full((*shape, *grid.shape), np.nan)
+    timing = {"load": 0.0, "prepare": 0.0, "score": 0.0}
+    rows = dataset.select(category=category, instance=instance)
+    for _, row in rows.iterrows():
+        t0 = time.perf_counter()
+        image = dataset.load_image(row)
+        box = dataset.bbox(row)
+        t1 = time.perf_counter()
+        timing["load"] += t1 - t0
+        a, e, s = int(row["azimuth"]), int(row["elevation"]), int(row["scale"])
+        for preparer, members in groups:
+            t0 = time.perf_counter()
+            features = preparer.prepare(image, box)
+            t1 = time.perf_counter()
+            for fi, ti, det in members:
+                out[fi, ti, a, e, s] = float(det.score_prepared(features))
+            timing["prepare"] += t1 - t0
+            timing["score"] += time.perf_counter() - t1
+    return out, timing
+
+
+# -- worker processes --------------------------------------------------------------------------------
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(dataset: MultiviewDataset, detectors: Mapping, shape: tuple[int, int]) -> None:
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover
+        pass
+    _WORKER.update(dataset=dataset, groups=_groups(detectors), shape=shape)
+
+
+def _worker_run(chunk: Chunk) -> tuple[Chunk, np.ndarray, dict[str, float]]:
+    scores, timing = score_chunk(_WORKER["dataset"], _WORKER["groups"], chunk, _WORKER["shape"])
+    return chunk, scores, timing
+
+
+def _run_parallel(
+    dataset: MultiviewDataset,
+    detectors: Mapping,
+    shape: tuple[int, int],
+    todo: list[Chunk],
+    workers: int,
+) -> Iterable[tuple[Chunk, np.ndarray, dict[str, float]]]:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "XLA_FLAGS")
+    saved = {k: os.environ.get(k) for k in names}
+    os.environ.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    os.environ["XLA_FLAGS"] = (
+        (saved["XLA_FLAGS"] or "") + " --xla_cpu_multi_thread_eigen=false"
+    ).strip()
+    try:
+        with ProcessPoolExecutor(
+            max_workers=workers,
+            mp_context=mp.get_context("spawn"),
+            initializer=_worker_init,
+            initargs=(dataset, detectors, shape),
+        ) as pool:
+            futures = [pool.submit(_worker_run, c) for c in todo]
+            for fut in as_completed(futures):
+                yield fut.result()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+# -- the table ---------------------------------------------------------------------------------------
+def _compatible(old: xr.Dataset, new: xr.Dataset) -> bool:
+    for name in ("detector", "target", "category", "instance", "azimuth", "elevation", "scale"):
+        if old.sizes.get(name) != new.sizes.get(name):
+            return False
+        if not np.array_equal(old[name].values.astype(str), new[name].values.astype(str)):
+            return False
+    return old.attrs.get("grid") == new.attrs.get("grid") and np.array_equal(
+        old["split"].values.astype(str), new["split"].values.astype(str)
+    )
+
+
+def _fingerprint(detectors: Mapping[str, Mapping[str, Detector]]) -> str:
+    """JSON of every detector's meta: a checkpoint is resumed only by the same detectors."""
+    metas = {f"{fam}/{t}": det.meta() for fam, d in detectors.items() for t, det in d.items()}
+    return json.dumps(metas, sort_keys=True, default=str)
+
+
+def _write_partial(table: xr.Dataset, done: list[Chunk], path: Path, fingerprint: str) -> None:
+    ds = table.copy()
+    ds.attrs["finished_chunks"] = json.dumps([[c, int(i)] for c, i in done])
+    ds.attrs["detectors"] = fingerprint
+    with atomic_path(path) as tmp:
+        ds.to_netcdf(tmp, engine="h5netcdf")
+
+
+def score_dataset(
+    dataset: MultiviewDataset,
+    detectors: Mapping[str, Mapping[str, Detector]],
+    *,
+    path: str | Path | None = None,
+    progress: bool = True,
+    workers: int = 1,
+    on_chunk: Callable[[Chunk, dict[str, float]], None] | None = None,
+) -> xr.Dataset:
+    """Score every image of ``dataset`` with every detector: the response table.
+
+    Parameters
+    ----------
+    dataset
+        The multiview dataset (all splits are scored; the split of each instance is recorded).
+    detectors
+        ``{family: {target: trained Detector}}``. The table's ``detector`` axis follows the order of the
+        families, its ``target`` axis is the sorted union of targets.
+    path
+        Where to write the table (netCDF, atomically). With a path the run is resumable (see the module
+        docstring); without one nothing is written.
+    progress
+        Show a progress bar over chunks (instances).
+    workers
+        Number of processes (1: score in this process).
+    on_chunk
+        Called with ``(chunk, seconds)`` after each chunk (timings of loading/prepare/score).
+
+    Returns
+    -------
+    xarray.Dataset
+        The response table (schema of :mod:`scrppl.responses`), ``score`` with dims
+        ``(detector, target, category, instance, azimuth, elevation, scale)``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown target category or an empty ``detectors``.
+    RuntimeError
+        For an untrained detector (before any work is done).
+    """
+    from tqdm.auto import tqdm
+
+    if not detectors or not any(detectors.values()):
+        raise ValueError("score_dataset needs at least one trained detector")
+    families = list(detectors)
+    targets = sorted({t for d in detectors.values() for t in d})
+    table = response_table_for(dataset, families, targets)
+    for fam, by_target in detectors.items():
+        for target, det in by_target.items():
+            if det.family != fam:
+                raise ValueError(
+                    f"detector for {target!r} listed under family {fam!r} is a {det.family!r}"
+                )
+            if det.target != target:
+                raise ValueError(
+                    f"detector listed for target {target!r} was trained for {det.target!r}"
+                )
+            det.require_fitted()
+    shape = (len(families), len(targets))
+    chunks: list[Chunk] = [
+        (str(c), int(i))
+        for c, i in zip(dataset.instances["category"], dataset.instances["instance"], strict=True)
+    ]
+    done: list[Chunk] = []
+    fingerprint = _fingerprint(detectors)
+    partial = partial_path(path) if path is not None else None
+    if partial is not None and partial.exists():
+        try:
+            with xr.open_dataset(partial, engine="h5netcdf") as old:
+                old = old.load()
+        except (OSError, ValueError):
+            old = None  # unreadable checkpoint: start again
+        if (
+            old is not None
+            and _compatible(old, table)
+            and old.attrs.get("detectors") == fingerprint
+        ):
+            table["score"].values[...] = old["score"].values
+            done = [(str(c), int(i)) for c, i in json.loads(old.attrs.get("finished_chunks", "[]"))]
+    done_set = set(done)
+    todo = [c for c in chunks if c not in done_set]
+    cat_index = {c: k for k, c in enumerate(table["category"].values.tolist())}
+    score = table["score"].values
+
+    def results() -> Iterable[tuple[Chunk, np.ndarray, dict[str, float]]]:
+        if workers > 1 and len(todo) > 1:
+            yield from _run_parallel(dataset, detectors, shape, todo, min(workers, len(todo)))
+        else:
+            groups = _groups(detectors)
+            for chunk in todo:
+                yield (chunk, *score_chunk(dataset, groups, chunk, shape))
+
+    bar = tqdm(
+        total=len(chunks), initial=len(done), desc="scoring", unit="instance", disable=not progress
+    )
+    try:
+        for chunk, scores, timing in results():
+            score[:, :, cat_index[chunk[0]], chunk[1]] = scores
+            done.append(chunk)
+            if partial is not None:
+                _write_partial(table, done, partial, fingerprint)
+            if on_chunk is not None:
+                on_chunk(chunk, timing)
+            bar.update(1)
+    finally:
+        bar.close()
+    table.attrs["families"] = json.dumps(families)
+    validate_response_table(table)
+    if path is not None:
+        save_response_table(table, path)
+        if partial.exists():
+            partial.unlink()
+    return table
