@@ -199,6 +199,20 @@ def test_fast_mask_reader_agrees_with_read_ascii_mask(tmp_path, rng):
         vals = rng.choice([0, 1, 255], size=shape)
         path.write_text(f"{shape[0]} {shape[1]}\n" + "\n".join(" ".join(map(str, r)) for r in vals))
         assert np.array_equal(_read_mask(path), read_ascii_mask(path))
+    # the fast path for 0/1 masks: as written by write_ascii_mask, on one line, with CRLF and tabs
+    for k, mask in enumerate([rng.random((30, 50)) < 0.3, np.ones((2, 3), bool)]):
+        path = tmp_path / f"b{k}.mask"
+        write_ascii_mask(path, mask)
+        assert np.array_equal(_read_mask(path), mask)
+        flat = " ".join(path.read_text().split())
+        path.write_text(flat)
+        assert np.array_equal(_read_mask(path), mask)
+        path.write_bytes(flat.replace(" ", "\t").encode() + b"\r\n")
+        assert np.array_equal(_read_mask(path), mask)
+    # multi-character tokens are numbers, not digits: "10 01" is two non-zero values
+    path = tmp_path / "multi.mask"
+    path.write_text("1 3\n10 01 0\n")
+    assert _read_mask(path).tolist() == read_ascii_mask(path).tolist() == [[True, True, False]]
     bad = tmp_path / "bad_one.mask"
     bad.write_text("2 2\n1 0 q 1\n")
     with pytest.raises(ValueError, match="bad_one.mask"):

@@ -45,8 +45,9 @@ Validation and boxes
 --------------------
 With ``validate=True`` (the default) every image is decoded once with OpenCV and every mask is parsed, so
 a broken file fails at load time rather than halfway through an experiment; the bounding boxes
-(``x0, y0, x1, y1``) are then computed from the masks at load time. This costs about 3 ms per view
-(about 25 s for the 7,200 images of the full dataset). With ``validate=False`` only the names and the
+(``x0, y0, x1, y1``) are then computed from the masks at load time. This costs about 2 ms per
+320x240 view on one core (measured: 720 views in 1.6 s, so about 16 s for 7,200 images; larger
+images cost proportionally more). With ``validate=False`` only the names and the
 presence of every mask are checked (milliseconds); images and masks are read when used, and the boxes
 are stored as ``-1`` placeholders that :meth:`~scrppl.datasets.core.MultiviewDataset.bbox` computes from
 the mask on demand.
@@ -55,7 +56,6 @@ the mask on demand.
 from __future__ import annotations
 
 import re
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -135,21 +135,36 @@ def _visible(path: Path) -> bool:
     return not path.name.startswith(".")
 
 
+_MASK_HEADER = re.compile(rb"^\s*(\d+)\s+(\d+)(?=\s)")
+_BINARY_BODY = np.zeros(256, dtype=bool)
+_BINARY_BODY[list(b"01 \t\r\n")] = True
+
+
 def _read_mask(path: Path) -> np.ndarray:
-    """Read an ASCII mask quickly; identical result to :func:`read_ascii_mask` (which reports errors)."""
+    """Read an ASCII mask quickly; the same result as :func:`read_ascii_mask` (which reports errors).
+
+    Savarese masks are ``0``/``1`` tokens: for those, the body is decoded from its bytes directly
+    (single-character tokens, so every digit is one value), about 30x faster than parsing numbers.
+    Anything else (other values, malformed files) goes through :func:`read_ascii_mask`.
+    """
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            values = np.fromstring(path.read_text(), dtype=float, sep=" ")
-    except (ValueError, DeprecationWarning, OSError):
-        return read_ascii_mask(path)  # raises the clear error, or parses the odd-but-valid file
-    if values.size < 2:
+        raw = path.read_bytes()
+    except OSError:
+        return read_ascii_mask(path)  # raises the clear error
+    header = _MASK_HEADER.match(raw)
+    if header is None:
         return read_ascii_mask(path)
-    rows, cols = values[0], values[1]
-    body = values[2:]
-    if rows != int(rows) or cols != int(cols) or rows <= 0 or cols <= 0 or body.size != rows * cols:
+    rows, cols = int(header.group(1)), int(header.group(2))
+    body = np.frombuffer(raw, dtype=np.uint8)[header.end() :]
+    if not _BINARY_BODY[body].all():
         return read_ascii_mask(path)
-    return body.reshape(int(rows), int(cols)) != 0
+    digit = body >= ord("0")
+    if (digit[1:] & digit[:-1]).any():  # a multi-character token such as "10"
+        return read_ascii_mask(path)
+    values = body[digit]
+    if rows <= 0 or cols <= 0 or values.size != rows * cols:
+        return read_ascii_mask(path)
+    return (values == ord("1")).reshape(rows, cols)
 
 
 def _mask_files(folder: Path, first_image: Path) -> dict[str, Path]:
