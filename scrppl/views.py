@@ -57,6 +57,7 @@ class ViewGrid:
             raise ValueError(f"n_azimuth must be a positive integer, got {self.n_azimuth!r}")
         if len(self.elevations) < 1 or len(self.scales) < 1:
             raise ValueError("a view grid needs at least one elevation and one scale")
+        object.__setattr__(self, "n_azimuth", int(self.n_azimuth))
         object.__setattr__(self, "elevations", tuple(float(x) for x in self.elevations))
         object.__setattr__(self, "scales", tuple(float(x) for x in self.scales))
 

@@ -189,6 +189,19 @@ def test_grid_validation(kwargs):
         ViewGrid(**kwargs)
 
 
+@pytest.mark.parametrize("n", [8.0, np.int64(8), np.float32(8)])
+def test_integral_non_int_azimuth_count_is_stored_as_int(n):
+    """ViewGrid(8.0) or a NumPy integer must behave exactly like ViewGrid(8) (and serialise to JSON)."""
+    import json
+
+    g = ViewGrid(n)
+    assert type(g.n_azimuth) is int and g == ViewGrid(8)
+    views = g.all_views()
+    assert views.dtype.kind == "i"
+    assert np.array_equal(g.view_index(views[:, 0], views[:, 1], views[:, 2]), np.arange(72))
+    assert json.loads(json.dumps(g.to_dict()))["n_azimuth"] == 8
+
+
 def test_grid_dict_round_trip_and_float_coercion():
     g = ViewGrid(6, (5, 15), (1, 2, 3))
     assert g.elevations == (5.0, 15.0) and all(isinstance(x, float) for x in g.scales)
