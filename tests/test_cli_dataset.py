@@ -142,6 +142,18 @@ def test_info_on_a_broken_savarese_folder_names_the_file(tmp_path, capsys):
     code, _, err = run(["dataset", "info", "--root", str(tmp_path), "--no-progress"], capsys)
     assert code == 1
     assert "Iron_1_A5_H1_S1" in err and "Traceback" not in err
+    assert "no index.csv" in err  # says how the folder was read
+
+
+def test_info_on_an_unfinished_synthetic_folder(dataset_root, tmp_path, capsys):
+    """Images with PNG masks but no index yet (an interrupted make): an error, with the way out."""
+    import shutil
+
+    shutil.copytree(dataset_root / "car", tmp_path / "car")
+    code, _, err = run(["dataset", "info", "--root", str(tmp_path)], capsys)
+    assert code == 1
+    assert "missing mask" in err and "car_1_A1_H1_S1" in err
+    assert "scrppl dataset make" in err
 
 
 @pytest.mark.parametrize("command", ["info", "sheet"])

@@ -129,7 +129,13 @@ def load_dataset(root: Path, *, split_seed: int = 0, validate: bool = True, prog
         return MultiviewDataset.load(root)
     from scrppl.datasets.savarese import load_savarese
 
-    return load_savarese(root, split_seed=split_seed, validate=validate, progress=progress)
+    try:
+        return load_savarese(root, split_seed=split_seed, validate=validate, progress=progress)
+    except (FileNotFoundError, ValueError) as err:
+        raise type(err)(
+            f"{err}\n(there is no {INDEX_FILE} in {root}, so it was read as a copy of the Savarese "
+            "dataset; if it is an unfinished `scrppl dataset make`, run that again to complete it)"
+        ) from err
 
 
 def format_summary(summary: dict) -> str:
