@@ -244,11 +244,16 @@ def test_score_dataset_resumes_after_interruption(toy, trained, tmp_path, monkey
     # the resumed table equals an uninterrupted run
     ref = score_dataset(toy, detectors, path=None, progress=False)
     xr.testing.assert_identical(table["score"], ref["score"])
+    # a finished table by the same detectors is returned as it is
+    chunks_run.clear()
+    again = score_dataset(toy, detectors, path=path, progress=False)
+    assert chunks_run == []
+    xr.testing.assert_identical(again["score"], table["score"])
     # a different detector set does not resume from a stale checkpoint
     _FailsOnce.armed = True
     _FailsOnce.fail_on = ("cat", 0)
     with pytest.raises(RuntimeError):
-        score_dataset(toy, detectors, path=path, progress=False)
+        score_dataset(toy, detectors, path=path, progress=False, overwrite=True)
     chunks_run.clear()
     score_dataset(toy, {"bof": {"coffee": dets["bof"]["coffee"]}}, path=path, progress=False)
     assert len(chunks_run) == 9
@@ -355,3 +360,59 @@ def test_detector_ap_and_azimuth_dependence_on_constructed_tables():
     assert json.loads(json.dumps(q)) == q
     with pytest.raises(ValueError, match="split 'fit' not in"):
         detector_ap(t, "fit")
+
+
+# -- the command and the figures --------------------------------------------------------------------
+def test_cli_detect_end_to_end(toy, tmp_path, capsys):
+    from scrppl.cli import main
+
+    out = tmp_path / "results"
+    argv = ["detect", "--root", str(toy.root), "--out", str(out), "--families", "sift,bof"]
+    argv += ["--workers", "1", "--quiet"]
+    assert main(argv) == 0
+    table = load_response_table(out / "responses.nc")
+    assert list(table["detector"].values) == ["sift", "bof"]
+    quality = json.loads((out / "detectors" / "quality.json").read_text())
+    assert set(quality["average_precision"]) == {"sift", "bof"}
+    assert quality["split"] == "test"
+    ap = detector_ap(table, "test")
+    assert quality["average_precision"]["bof"]["cat"] == pytest.approx(
+        float(ap.sel(detector="bof", target="cat")), abs=1e-4
+    )
+    for name in ["fig1-astro.png", "fig1-cat.png", "responses-sift.png", "responses-bof.png"]:
+        assert (out / "figures" / name).stat().st_size > 1000
+    for fam, target in itertools.product(["sift", "bof"], toy.categories):
+        assert detector_path(out, fam, target).exists()
+    # errors: no dataset, unknown family, unknown target
+    assert main(["detect", "--root", str(tmp_path / "none"), "--out", str(out), "--quiet"]) == 1
+    assert "scrppl dataset make" in capsys.readouterr().err
+    base = ["detect", "--root", str(toy.root), "--out", str(out), "--quiet"]
+    assert main([*base, "--families", "sift,nope"]) == 1
+    assert "unknown detector family 'nope'" in capsys.readouterr().err
+    assert main([*base, "--families", "sift", "--targets", "dog"]) == 1
+    assert "unknown category 'dog'" in capsys.readouterr().err
+
+
+def test_plots_accept_missing_views(toy, trained):
+    from scrppl.plotting.detectors import plot_mean_response_by_azimuth, plot_response_over_azimuth
+
+    _, dets = trained
+    table = score_dataset(toy, {"bof": dets["bof"]}, progress=False)
+    fig = plot_mean_response_by_azimuth(table, "bof", split="test")
+    assert len(fig.axes) == 3
+    with pytest.raises(ValueError, match="detector 'dpm' not in"):
+        plot_mean_response_by_azimuth(table, "dpm")
+    imgs, resp, detections = [], [], []
+    for a in range(4):
+        if ("cat", 2, a, 1) in MISSING:
+            imgs.append(None), resp.append(np.nan), detections.append([])
+            continue
+        row = toy.row("cat", 2, a, 1)
+        img, box = toy.load_image(row), toy.bbox(row)
+        imgs.append(img)
+        resp.append(dets["bof"]["cat"].score(img, box))
+        detections.append(dets["bof"]["cat"].detect(img, box))
+    fig = plot_response_over_azimuth(imgs, np.asarray(resp), detections, threshold=1.0)
+    assert len(fig.axes) == 5
+    with pytest.raises(ValueError, match="one response"):
+        plot_response_over_azimuth(imgs, np.asarray(resp[:2]), detections)

@@ -410,6 +410,18 @@ class Detector(abc.ABC):
             "class": type(self).__name__,
         }
 
+    def fingerprint(self) -> str:
+        """SHA-1 of the meta and the trained state: equal for detectors that score identically."""
+        import hashlib
+
+        self.require_fitted()
+        digest = hashlib.sha1(json.dumps(self.meta(), sort_keys=True, default=str).encode())
+        for name, arr in sorted(self._get_state().items()):
+            arr = np.ascontiguousarray(arr)
+            digest.update(f"{name}:{arr.dtype}:{arr.shape}".encode())
+            digest.update(arr.tobytes())
+        return digest.hexdigest()
+
     def save(self, path: str | Path) -> Path:
         """Write the trained detector to a single ``.npz`` file atomically (format: module docstring)."""
         self.require_fitted()

@@ -11,6 +11,8 @@ every trained detector and every image of a :class:`~scrppl.datasets.core.Multiv
   partial table is written atomically to ``<path>.partial.nc`` together with the list of finished chunks;
   a later call with the same detectors, targets and dataset resumes from it, scoring only the chunks not
   yet finished. When everything is scored the table is written to ``path`` and the partial file removed.
+  A table already at ``path`` that was written by the same detectors (their saved meta is recorded in the
+  table's ``detectors`` attribute) is returned as it is.
 * **Parallel.** With ``workers > 1`` chunks are scored in that many spawned processes (each single-threaded
   for BLAS/OpenCV); the main process collects results and checkpoints.
 
@@ -200,8 +202,12 @@ def _compatible(old: xr.Dataset, new: xr.Dataset) -> bool:
 
 
 def _fingerprint(detectors: Mapping[str, Mapping[str, Detector]]) -> str:
-    """JSON of every detector's meta: a checkpoint is resumed only by the same detectors."""
-    metas = {f"{fam}/{t}": det.meta() for fam, d in detectors.items() for t, det in d.items()}
+    """JSON of every detector's meta and a hash of its trained state (same detectors, same key)."""
+    metas = {
+        f"{fam}/{target}": det.fingerprint()
+        for fam, by_target in detectors.items()
+        for target, det in by_target.items()
+    }
     return json.dumps(metas, sort_keys=True, default=str)
 
 
@@ -221,6 +227,7 @@ def score_dataset(
     progress: bool = True,
     workers: int = 1,
     on_chunk: Callable[[Chunk, dict[str, float]], None] | None = None,
+    overwrite: bool = False,
 ) -> xr.Dataset:
     """Score every image of ``dataset`` with every detector: the response table.
 
@@ -240,6 +247,9 @@ def score_dataset(
         Number of processes (1: score in this process).
     on_chunk
         Called with ``(chunk, seconds)`` after each chunk (timings of loading/prepare/score).
+    overwrite
+        Rescore even if ``path`` already holds a table written by the same detectors (otherwise that
+        table is loaded and returned).
 
     Returns
     -------
@@ -279,6 +289,19 @@ def score_dataset(
     ]
     done: list[Chunk] = []
     fingerprint = _fingerprint(detectors)
+    if path is not None and Path(path).exists() and not overwrite:
+        try:
+            with xr.open_dataset(path, engine="h5netcdf") as old:
+                old = old.load()
+        except (OSError, ValueError):
+            old = None
+        if (
+            old is not None
+            and _compatible(old, table)
+            and old.attrs.get("detectors") == fingerprint
+        ):
+            validate_response_table(old)
+            return old  # already scored by these detectors
     partial = partial_path(path) if path is not None else None
     if partial is not None and partial.exists():
         try:
@@ -321,6 +344,7 @@ def score_dataset(
     finally:
         bar.close()
     table.attrs["families"] = json.dumps(families)
+    table.attrs["detectors"] = fingerprint
     validate_response_table(table)
     if path is not None:
         save_response_table(table, path)
