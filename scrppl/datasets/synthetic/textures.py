@@ -403,7 +403,7 @@ def face(seed: int, skin, hair, hair_style: str = "short", height: int = 128, wi
         uu = np.linspace(0, 1, W)[None, :]
         vv = np.linspace(1, 0, H)[:, None]
         side = np.abs(uu - 0.5)  # 0 at the face, 0.5 at the back
-        bottom = 0.62 if hair_style == "short" else 0.05  # how low the hair reaches at the back
+        bottom = 0.42 if hair_style == "short" else 0.05  # how low the hair reaches at the back
         # hairline descends from the forehead to the nape around the sides
         limit = np.where(side < 0.13, hairline, hairline - (hairline - bottom) * np.clip((side - 0.13) / 0.17, 0, 1))
         mask = vv > limit
@@ -411,7 +411,7 @@ def face(seed: int, skin, hair, hair_style: str = "short", height: int = 128, wi
     else:
         # a bald head: slightly shinier skin on the crown
         vv = np.linspace(1, 0, H)[:, None]
-        img = _to_uint8(img / 255.0 * (1.0 + 0.08 * np.clip(vv - 0.7, 0, 1)))
+        img = _to_uint8(img / 255.0 * (1.0 + 0.08 * np.clip(vv - 0.7, 0, 1))[..., None])
     skin_dark = np.asarray(skin) * 0.6
     # eyes
     eye_v, eye_du, eye_w = rng.uniform(0.55, 0.62), rng.uniform(0.05, 0.065), rng.uniform(0.022, 0.03)

@@ -368,3 +368,48 @@ def polyline_tube(points: np.ndarray, radius: float, sections: int = 8, caps: bo
     if caps and mesh.volume < 0:
         mesh.invert()
     return mesh
+
+
+def loft(polygon: np.ndarray, scales, zs, offsets=None, cap_bottom: bool = True, cap_top: bool = True) -> trimesh.Trimesh:
+    """Loft a horizontal polygon through scaled, shifted copies at increasing heights.
+
+    Parameters
+    ----------
+    polygon : (n, 2) float array
+        Simple polygon in the xy plane (made counter-clockwise).
+    scales : (k,) or (k, 2) array
+        Scale of the polygon at each level (per axis when (k, 2)); a level of scale 0 closes the
+        surface to a point.
+    zs : (k,) array
+        Increasing heights of the levels.
+    offsets : (k, 2) array, optional
+        xy shift of each level.
+    cap_bottom, cap_top : bool
+        Close the first / last level with a flat polygon.
+
+    Returns
+    -------
+    trimesh.Trimesh
+    """
+    p = np.asarray(polygon, float)
+    area = 0.5 * np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])
+    if area < 0:
+        p = p[::-1]
+    zs = np.asarray(zs, float)
+    k = len(zs)
+    sc = np.asarray(scales, float)
+    sc = np.broadcast_to(sc[:, None] if sc.ndim == 1 else sc, (k, 2))
+    off = np.zeros((k, 2)) if offsets is None else np.asarray(offsets, float)
+    pts = p[:, None, :] * sc[None, :, :] + off[None, :, :]
+    grid = np.concatenate([pts, np.broadcast_to(zs[None, :, None], (len(p), k, 1))], -1)
+    side, _ = grid_surface(grid, close_u=True)
+    meshes = [side]
+    tris = _ear_clip(p)
+    n = len(p)
+    if cap_bottom and np.all(sc[0] > 0):
+        verts = np.column_stack([pts[:, 0], np.full(n, zs[0])])
+        meshes.append(make_mesh(verts, tris[:, ::-1]))
+    if cap_top and np.all(sc[-1] > 0):
+        verts = np.column_stack([pts[:, -1], np.full(n, zs[-1])])
+        meshes.append(make_mesh(verts, tris))
+    return concat(meshes)
