@@ -1,0 +1,234 @@
+"""The trial runner: filter update and planner choice, alternating, compiled and batched.
+
+One trial observes its start view, then for ``n_steps - 1`` steps asks the planner for the next view,
+observes it and updates the belief. The whole trial is a ``jax.lax.scan``; trials are ``vmap``-ed and
+run in fixed-size chunks under one ``jit`` (the last chunk is padded), so a batch of thousands of trials
+compiles once.
+
+Determinism: trial ``i`` uses the key ``fold_in(key, i)`` and step ``t`` the key
+``fold_in(fold_in(key, i), t)``, so the same key gives the same trial whatever the chunk size, and every
+planner sees the same trials (instances, poses and start views come from :class:`~scrppl.sim.Trials`).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from scrppl.belief import FILTERS, init_belief, joint_log_belief, update
+from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.planning import MODES, PLANNERS, choose_view
+from scrppl.sim.simulator import Trials, robot_frame
+
+__all__ = ["TrialRecord", "run_trials", "run_trial"]
+
+
+class TrialRecord(NamedTuple):
+    """What happened in each trial (leading axes ``(T, K)``: trials, steps).
+
+    Attributes
+    ----------
+    views
+        Robot view ``(phi, e, s)`` observed at each step, ``(T, K, 3)``.
+    responses
+        The (transformed) response observed at each step, ``(T, K)``.
+    observed
+        ``(T, K)`` boolean; ``False`` when no candidate view was left (the belief is then unchanged and
+        ``views``/``responses`` repeat the previous step's values).
+    log_belief
+        Normalised ``log p(o, theta | f_1..f_k)`` after each step, ``(T, K, O, A)``.
+    """
+
+    views: jax.Array
+    responses: jax.Array
+    observed: jax.Array
+    log_belief: jax.Array
+
+
+def run_trial(
+    key: jax.Array,
+    model: ResponseModel,
+    responses,
+    available,
+    pose,
+    start,
+    *,
+    filter: str = "naive_bayes",
+    planner: str = "sampled",
+    objective: str = "joint",
+    mode: str = "azimuth",
+    n_steps: int = 8,
+    n_samples: int = 256,
+    order: int = 32,
+    motion_cost=0.0,
+) -> TrialRecord:
+    """Run one trial (pure, traceable; see :func:`run_trials` for the batched, checked version).
+
+    Parameters
+    ----------
+    key
+        The trial's PRNG key.
+    model
+        The response model.
+    responses, available
+        The trial's object-frame responses and availability, ``(A, E, S)``.
+    pose
+        Hidden pose ``theta*``.
+    start
+        Start robot view ``(phi0, e0, s0)``.
+    filter, planner, objective, mode, n_steps, n_samples, order, motion_cost
+        See :func:`run_trials`.
+
+    Returns
+    -------
+    TrialRecord
+        Arrays with a leading step axis ``K = n_steps``.
+    """
+    resp_r, avail_r = robot_frame(responses, available, pose)
+    start = jnp.asarray(start, jnp.int32)
+
+    def observe_update(belief, visited, current, view, found):
+        f = resp_r[view[0], view[1], view[2]]
+        new = update(model, belief, f, view[0], view[1], view[2])
+        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
+        visited = visited.at[view[0], view[1], view[2]].set(
+            visited[view[0], view[1], view[2]] | found
+        )
+        view = jnp.where(found, view, current)
+        f = resp_r[view[0], view[1], view[2]]
+        return belief, visited, view, f
+
+    belief0 = init_belief(filter, model)
+    visited0 = jnp.zeros(avail_r.shape, bool)
+    belief, visited, current, f0 = observe_update(
+        belief0, visited0, start, start, jnp.asarray(True)
+    )
+    first = (current, f0, jnp.asarray(True), joint_log_belief(belief))
+
+    def step(carry, t):
+        belief, visited, current = carry
+        view, found, _ = choose_view(
+            jax.random.fold_in(key, t),
+            model,
+            belief,
+            current,
+            visited,
+            avail_r,
+            planner=planner,
+            objective=objective,
+            mode=mode,
+            n_samples=n_samples,
+            order=order,
+            motion_cost=motion_cost,
+        )
+        belief, visited, current, f = observe_update(
+            belief, visited, current, view.astype(jnp.int32), found
+        )
+        return (belief, visited, current), (current, f, found, joint_log_belief(belief))
+
+    _, rest = jax.lax.scan(step, (belief, visited, current), jnp.arange(1, n_steps))
+    out = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+    return TrialRecord(*out)
+
+
+@partial(
+    jax.jit,
+    static_argnames=("filter", "planner", "objective", "mode", "n_steps", "n_samples", "order"),
+)
+def _run_chunk(keys, model, trials: Trials, motion_cost, **static):
+    fn = partial(run_trial, **static, motion_cost=motion_cost)
+    return jax.vmap(fn, in_axes=(0, None, 0, 0, 0, 0))(
+        keys, model, trials.responses, trials.available, trials.pose, trials.start
+    )
+
+
+def run_trials(
+    key: jax.Array,
+    model: ResponseModel,
+    trials: Trials,
+    *,
+    filter: str = "naive_bayes",
+    planner: str = "sampled",
+    objective: str = "joint",
+    mode: str = "azimuth",
+    n_steps: int | None = None,
+    n_samples: int = 256,
+    order: int = 32,
+    motion_cost: float = 0.0,
+    chunk_size: int = 1024,
+    progress: bool = False,
+) -> TrialRecord:
+    """Run every trial with one filter and one planner.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key (trial ``i`` uses ``fold_in(key, i)``; use the same key for every planner).
+    model
+        The response model, on the same view grid as the trials.
+    trials
+        The trials (:func:`scrppl.sim.make_trials`).
+    filter
+        ``"naive_bayes"`` (the paper) or ``"instance"`` (instance-aware).
+    planner
+        ``"random"``, ``"sampled"`` (the paper's eq. 5), ``"quadrature"`` or ``"plug_in"``.
+    objective
+        Entropy objective of the entropy planners: ``"joint"``, ``"class"`` or ``"pose"``.
+    mode
+        Candidate views: ``"azimuth"`` (the paper) or ``"all"``.
+    n_steps
+        Views per trial (default ``A``; at most the number of candidate views).
+    n_samples, order
+        ``M`` of the sampled planner; Gauss-Hermite order of the quadrature planner.
+    motion_cost
+        Nats per azimuth bin travelled.
+    chunk_size
+        Trials per compiled batch.
+    progress
+        Show a progress bar over chunks.
+
+    Returns
+    -------
+    TrialRecord
+        Arrays with leading axes ``(T, K)``.
+    """
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
+    if mode not in MODES:
+        raise ValueError(f"unknown candidate mode {mode!r}; expected one of {MODES}")
+    grid_shape = tuple(trials.responses.shape[1:])
+    check_response_model(model, grid_shape)
+    n_a, n_e, n_s = grid_shape
+    max_steps = n_a if mode == "azimuth" else n_a * n_e * n_s
+    n_steps = n_a if n_steps is None else int(n_steps)
+    if not 1 <= n_steps <= max_steps:
+        raise ValueError(f"n_steps must lie in 1..{max_steps} for mode {mode!r}, got {n_steps}")
+    n = trials.n_trials
+    chunk = max(1, min(int(chunk_size), n))
+    idx = jnp.arange(n)
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
+    static = dict(
+        filter=filter,
+        planner=planner,
+        objective=objective,
+        mode=mode,
+        n_steps=n_steps,
+        n_samples=int(n_samples),
+        order=int(order),
+    )
+    outs = []
+    starts = range(0, n, chunk)
+    for lo in tqdm(starts, desc=f"{filter}/{planner}", disable=not progress, leave=False):
+        sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # pad the last chunk with repeats
+        part = Trials(*(x[sel] for x in trials))
+        out = _run_chunk(keys[sel], model, part, jnp.float32(motion_cost), **static)
+        keep = min(chunk, n - lo)
+        outs.append([np.asarray(x[:keep]) for x in out])
+    return TrialRecord(*(jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True)))

@@ -1,0 +1,204 @@
+"""The trial simulator over held-out instances of a response table (Meger et al. 2010, Sec. IV-A).
+
+Each trial picks a held-out (``test`` split) instance that is either a positive (its category is the
+target) or a negative for the target, a hidden object pose ``theta*`` and a random start robot azimuth
+``phi0`` at an elevation and scale where the instance has every azimuth. Observing robot view
+``(phi, e, s)`` returns the pre-collected response at relative azimuth ``(phi - theta*) mod A``
+(:func:`observe`). Responses are passed through the viewpoint model's transform before filtering.
+
+Missing views (NaN in the table) are never used as numbers: :class:`Trials` carries an ``available``
+mask, the runner never offers unavailable views as candidates, and :func:`observe` refuses them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from scrppl.responses import table_grid, validate_response_table
+
+__all__ = ["Trials", "make_trials", "robot_frame", "observe", "select_trials"]
+
+
+class Trials(NamedTuple):
+    """A batch of simulated trials (a pytree; leading axis ``T`` = number of trials).
+
+    Attributes
+    ----------
+    responses
+        Transformed responses of each trial's instance in the *object* frame, ``(T, A, E, S)``
+        (``responses[t, a, e, s]`` is the response at relative azimuth ``a``); missing views hold 0.
+    available
+        ``(T, A, E, S)`` boolean: ``False`` where the table is NaN (the image does not exist).
+    label
+        True class ``o*`` (1 = the target is present), ``(T,)``.
+    pose
+        Hidden object pose ``theta*`` in azimuth bins, ``(T,)``.
+    start
+        Start robot view ``(phi0, e0, s0)``, ``(T, 3)``.
+    category
+        Index of the instance's category in the table's ``category`` coordinate, ``(T,)``.
+    instance
+        Index of the instance in the table's ``instance`` coordinate, ``(T,)``.
+    """
+
+    responses: jax.Array
+    available: jax.Array
+    label: jax.Array
+    pose: jax.Array
+    start: jax.Array
+    category: jax.Array
+    instance: jax.Array
+
+    @property
+    def n_trials(self) -> int:
+        """Number of trials ``T``."""
+        return self.label.shape[0]
+
+
+def make_trials(
+    key: jax.Array,
+    table: xr.Dataset,
+    detector: str,
+    target: str,
+    n_trials: int,
+    *,
+    positive_fraction: float = 0.5,
+    transform: Callable[[np.ndarray], np.ndarray] | None = None,
+    split: str = "test",
+) -> Trials:
+    """Draw ``n_trials`` trials from the held-out instances of a response table.
+
+    Exactly ``round(positive_fraction * n_trials)`` trials show a positive instance (category ==
+    target), the rest a negative one (any other category); their order is random. Instances are drawn
+    uniformly with replacement within each group; the pose ``theta*`` and the start azimuth ``phi0`` are
+    uniform over the ``A`` bins; the start elevation and scale are uniform over the ``(e, s)`` rings on
+    which the instance has all ``A`` azimuths (instances with no complete ring are not used).
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key: the same key gives the same trials.
+    table
+        A response table (:mod:`scrppl.responses`).
+    detector, target
+        Which detector and target category to simulate.
+    n_trials
+        Number of trials ``T``.
+    positive_fraction
+        Fraction of trials with a positive instance.
+    transform
+        Callable applied to the raw scores (e.g. ``lambda raw: transforms.apply(name, raw)``); ``None``
+        when the table is already transformed. NaN must stay NaN.
+    split
+        Which split to draw instances from (``"test"``: held out from detector training and fitting).
+
+    Returns
+    -------
+    Trials
+    """
+    validate_response_table(table)
+    for name, value in (("detector", detector), ("target", target)):
+        if value not in table[name].values.tolist():
+            raise ValueError(
+                f"{name} {value!r} is not in the response table ({table[name].values.tolist()})"
+            )
+    if n_trials < 1:
+        raise ValueError(f"n_trials must be positive, got {n_trials}")
+    if not 0.0 <= positive_fraction <= 1.0:
+        raise ValueError(f"positive_fraction must lie in [0, 1], got {positive_fraction}")
+    raw = table["score"].sel(detector=detector, target=target).values  # (C, I, A, E, S)
+    score = np.asarray(transform(raw) if transform is not None else raw, dtype=np.float64)
+    if score.shape != raw.shape:
+        raise ValueError(f"transform changed the shape of the scores: {raw.shape} -> {score.shape}")
+    if np.isinf(score).any() or (np.isnan(score) & ~np.isnan(raw)).any():
+        raise ValueError("transform produced non-finite responses from finite scores")
+    grid = table_grid(table)
+    n_a = grid.n_azimuth
+    present = ~np.isnan(score)
+    complete = present.all(axis=2)  # (C, I, E, S): every azimuth present on that ring
+    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
+    is_target = table["category"].values == target
+    pools = {
+        1: np.argwhere(usable & is_target[:, None]),
+        0: np.argwhere(usable & ~is_target[:, None]),
+    }
+    n_pos = int(round(positive_fraction * n_trials))
+    counts = {1: n_pos, 0: n_trials - n_pos}
+    for o, pool in pools.items():
+        if counts[o] and len(pool) == 0:
+            kind = "positive" if o else "negative"
+            raise ValueError(
+                f"no {kind} instances for target {target!r} in split {split!r} with a complete azimuth "
+                f"ring (detector {detector!r})"
+            )
+    k_order, k_inst, k_pose, k_phi, k_ring = jax.random.split(key, 5)
+    labels = np.asarray(
+        jax.random.permutation(k_order, np.r_[np.ones(n_pos), np.zeros(n_trials - n_pos)])
+    )
+    labels = labels.astype(np.int32)
+    u_inst = np.asarray(jax.random.uniform(k_inst, (n_trials,)))
+    u_ring = np.asarray(jax.random.uniform(k_ring, (n_trials,)))
+    cat = np.empty(n_trials, np.int32)
+    inst = np.empty(n_trials, np.int32)
+    ring = np.empty((n_trials, 2), np.int32)
+    for t in range(n_trials):
+        pool = pools[int(labels[t])]
+        c, i = pool[min(int(u_inst[t] * len(pool)), len(pool) - 1)]
+        rings = np.argwhere(complete[c, i])
+        cat[t], inst[t] = c, i
+        ring[t] = rings[min(int(u_ring[t] * len(rings)), len(rings) - 1)]
+    pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
+    phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
+    resp = score[cat, inst]  # (T, A, E, S)
+    avail = ~np.isnan(resp)
+    return Trials(
+        responses=jnp.asarray(np.where(avail, resp, 0.0), jnp.float32),
+        available=jnp.asarray(avail),
+        label=jnp.asarray(labels),
+        pose=jnp.asarray(pose),
+        start=jnp.asarray(np.c_[phi0, ring]),
+        category=jnp.asarray(cat),
+        instance=jnp.asarray(inst),
+    )
+
+
+def select_trials(trials: Trials, index) -> Trials:
+    """A subset of trials (any NumPy index along the trial axis)."""
+    return Trials(*(x[index] for x in trials))
+
+
+def robot_frame(responses, available, pose) -> tuple[jax.Array, jax.Array]:
+    """One trial's responses and availability indexed by *robot* view ``(phi, e, s)``.
+
+    ``out[phi] = responses[(phi - theta*) mod A]``.
+
+    Parameters
+    ----------
+    responses, available
+        Object-frame arrays ``(A, E, S)``.
+    pose
+        Hidden pose ``theta*``.
+    """
+    n_a = responses.shape[0]
+    rel = (jnp.arange(n_a) - pose) % n_a
+    return responses[rel], available[rel]
+
+
+def observe(trials: Trials, t: int, view) -> float:
+    """The response trial ``t`` returns at robot view ``(phi, e, s)``; ``ValueError`` if it is missing."""
+    phi, e, s = (int(v) for v in view)
+    n_a, n_e, n_s = trials.responses.shape[1:]
+    if not (0 <= phi < n_a and 0 <= e < n_e and 0 <= s < n_s):
+        raise ValueError(f"view {(phi, e, s)} is outside the view grid {(n_a, n_e, n_s)}")
+    a = (phi - int(trials.pose[t])) % n_a
+    if not bool(trials.available[t, a, e, s]):
+        raise ValueError(
+            f"trial {t} has no image at robot view {(phi, e, s)} (relative view {(a, e, s)})"
+        )
+    return float(trials.responses[t, a, e, s])

@@ -1,0 +1,244 @@
+"""Simulator, trial runner, metrics and the paired experiment on a small synthetic response table."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+from scipy.special import logsumexp
+
+from scrppl import sim
+from scrppl.models.response import ResponseModel
+from scrppl.responses import empty_response_table
+from scrppl.sim import metrics as M
+from scrppl.views import ViewGrid
+
+A, E, S = 8, 2, 1
+CATS = ["car", "bike", "shoe"]
+N_INST = 4
+
+
+def mu_present():
+    # the target is recognisable from the side (a = 2, 6), barely from the front and back
+    return 3.0 * np.abs(np.sin(2 * np.pi * np.arange(A) / A))[:, None, None] * np.ones((A, E, S))
+
+
+@pytest.fixture(scope="module")
+def table():
+    rng = np.random.default_rng(7)
+    split = np.array([["test", "test", "fit", "test"]] * len(CATS), dtype=object)
+    ds = empty_response_table(
+        ["dpm"], ["car"], CATS, N_INST, ViewGrid(A, (10.0, 30.0), (1.0,)), split
+    )
+    score = rng.normal(0.0, 0.5, size=ds["score"].shape)
+    score[0, 0, 0] += mu_present()
+    score[0, 0, 1, 3, :, 1] = np.nan  # bike 3 lacks the upper elevation
+    score[0, 0, 2, 1, 5, 0] = np.nan  # shoe 1 lacks one view of the lower ring
+    ds["score"][:] = score
+    return ds
+
+
+@pytest.fixture(scope="module")
+def model():
+    mu = np.stack([np.zeros((A, E, S)), mu_present()])[None]
+    return ResponseModel(
+        jnp.asarray(mu, jnp.float32), jnp.full(mu.shape, 0.5, jnp.float32), jnp.zeros((1, 2))
+    )
+
+
+def test_make_trials_is_deterministic_and_draws_held_out_instances(table, key):
+    t1 = sim.make_trials(key, table, "dpm", "car", 41, positive_fraction=0.25)
+    t2 = sim.make_trials(key, table, "dpm", "car", 41, positive_fraction=0.25)
+    for a, b in zip(t1, t2, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    label = np.asarray(t1.label)
+    assert label.sum() == round(0.25 * 41)
+    cat, inst = np.asarray(t1.category), np.asarray(t1.instance)
+    np.testing.assert_array_equal(label, cat == 0)
+    split = table["split"].values
+    assert np.all(split[cat, inst] == "test")
+    start = np.asarray(t1.start)
+    assert start[:, 0].min() >= 0 and start[:, 0].max() < A
+    # the start ring is complete for the chosen instance
+    raw = table["score"].values[0, 0]
+    for t in range(41):
+        assert not np.isnan(raw[cat[t], inst[t], :, start[t, 1], start[t, 2]]).any()
+    # missing views are flagged, never filled with a number that could be used
+    avail = np.asarray(t1.available)
+    np.testing.assert_array_equal(avail, ~np.isnan(raw[cat, inst]))
+    other = sim.make_trials(
+        jax.random.fold_in(key, 1), table, "dpm", "car", 41, positive_fraction=0.25
+    )
+    assert not np.array_equal(np.asarray(other.pose), np.asarray(t1.pose))
+
+
+def test_make_trials_applies_transform(table, key):
+    t_raw = sim.make_trials(key, table, "dpm", "car", 10)
+    t_tr = sim.make_trials(key, table, "dpm", "car", 10, transform=lambda x: 2.0 * x + 1.0)
+    ok = np.asarray(t_raw.available)
+    np.testing.assert_allclose(
+        np.asarray(t_tr.responses)[ok],
+        2.0 * np.asarray(t_raw.responses)[ok] + 1.0,
+        rtol=1e-6,
+        atol=1e-6,
+    )
+
+
+def test_observe_returns_the_response_at_the_relative_azimuth(table, key):
+    trials = sim.make_trials(key, table, "dpm", "car", 12)
+    raw = table["score"].sel(detector="dpm", target="car")
+    for t in range(12):
+        c = CATS[int(trials.category[t])]
+        i = int(trials.instance[t])
+        for phi in range(A):
+            rel = (phi - int(trials.pose[t])) % A
+            want = float(raw.sel(category=c, instance=i, azimuth=rel, elevation=0, scale=0))
+            if np.isnan(want):
+                with pytest.raises(ValueError, match="has no image"):
+                    sim.observe(trials, t, (phi, 0, 0))
+            else:
+                np.testing.assert_allclose(sim.observe(trials, t, (phi, 0, 0)), want, rtol=1e-6)
+    with pytest.raises(ValueError, match="outside the view grid"):
+        sim.observe(trials, 0, (A, 0, 0))
+
+
+def test_bad_simulator_input(table, key, model):
+    with pytest.raises(ValueError, match="target 'plane' is not in the response table"):
+        sim.make_trials(key, table, "dpm", "plane", 4)
+    with pytest.raises(ValueError, match="no positive instances"):
+        sim.make_trials(key, table, "dpm", "car", 4, split="train")
+    with pytest.raises(ValueError, match="non-finite"):
+        sim.make_trials(key, table, "dpm", "car", 4, transform=lambda x: np.where(x > 1, np.inf, x))
+    trials = sim.make_trials(key, table, "dpm", "car", 4)
+    other_grid = ResponseModel(*(x[:, :, :4] if x.ndim == 5 else x for x in model))
+    with pytest.raises(ValueError, match="view grid"):
+        sim.run_trials(key, other_grid, trials)
+    with pytest.raises(ValueError, match="n_steps"):
+        sim.run_trials(key, model, trials, n_steps=A + 1)
+
+
+def brute_force_log_belief(model, views, f):
+    """Naive Bayes by enumeration, in NumPy, from the recorded views and responses."""
+    mu = np.asarray(model.mu, float)[0]
+    sd = np.asarray(model.sigma, float)[0]
+    logp = np.zeros((2, A))
+    for (phi, e, s), fk in zip(views, f, strict=True):
+        for theta in range(A):
+            a = (phi - theta) % A
+            logp[:, theta] += stats.norm.logpdf(fk, mu[:, a, e, s], sd[:, a, e, s])
+    return logp - logsumexp(logp)
+
+
+@pytest.mark.parametrize("planner", ["sampled", "random"])
+def test_runner_records_are_consistent(table, model, key, planner):
+    trials = sim.make_trials(key, table, "dpm", "car", 6)
+    rec = sim.run_trials(key, model, trials, planner=planner, n_samples=64, chunk_size=4)
+    views = np.asarray(rec.views)
+    assert views.shape == (6, A, 3) and np.asarray(rec.observed).all()
+    for t in range(6):
+        # the start view comes first, azimuths are never repeated, elevation and scale stay put
+        np.testing.assert_array_equal(views[t, 0], np.asarray(trials.start[t]))
+        assert sorted(views[t, :, 0].tolist()) == list(range(A))
+        assert np.all(views[t, :, 1:] == views[t, 0, 1:])
+        f = [sim.observe(trials, t, v) for v in views[t]]
+        np.testing.assert_allclose(np.asarray(rec.responses[t]), f, rtol=1e-6)
+        for k in (0, 3, A - 1):
+            ref = brute_force_log_belief(model, views[t, : k + 1], f[: k + 1])
+            got = np.asarray(rec.log_belief[t, k])
+            keep = ref > -30
+            np.testing.assert_allclose(got[keep], ref[keep], atol=2e-3)
+    # the same key gives the same trials, whatever the chunk size
+    again = sim.run_trials(key, model, trials, planner=planner, n_samples=64, chunk_size=6)
+    np.testing.assert_array_equal(np.asarray(again.views), views)
+
+
+def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key):
+    trials = sim.make_trials(key, table, "dpm", "car", 24, positive_fraction=0.0)
+    n_steps = A * E * S
+    rec = sim.run_trials(key, model, trials, planner="random", mode="all", n_steps=n_steps)
+    avail = np.asarray(trials.available)
+    pose = np.asarray(trials.pose)
+    obs = np.asarray(rec.observed)
+    views = np.asarray(rec.views)
+    for t in range(24):
+        n_avail = int(avail[t].sum())
+        assert obs[t].sum() == n_avail  # steps without a candidate are flagged, not observed
+        seen = views[t][obs[t]]
+        assert len({tuple(v) for v in seen}) == n_avail
+        rel = (seen[:, 0] - pose[t]) % A
+        assert avail[t][rel, seen[:, 1], seen[:, 2]].all()
+        assert np.all(
+            np.isfinite(np.asarray(rec.log_belief[t])) | (np.asarray(rec.log_belief[t]) < 0)
+        )
+
+
+def test_metrics_against_hand_computation():
+    # two trials, two steps, O = 2, A = 4
+    p = np.zeros((2, 2, 2, 4))
+    p[0, 0, 1, 1] = 0.6
+    p[0, 0, 0, 3] = 0.4  # trial 0 step 1: p(present) = 0.6, MAP pose 1
+    p[0, 1, 1, 2] = 0.97
+    p[0, 1, 0, 0] = 0.03
+    p[1, :, 0, 0] = 0.5
+    p[1, :, 1, 3] = 0.5  # trial 1: undecided at both steps
+    with np.errstate(divide="ignore"):
+        logb = np.log(p)
+    resp = np.array([[1.0, 2.0], [0.5, -1.0]])
+    met = M.trial_metrics(logb, resp, np.ones((2, 2), bool), label=[1, 0], pose=[2, 1])
+    np.testing.assert_allclose(met["p_true"], [[0.6, 0.97], [0.5, 0.5]])
+    np.testing.assert_allclose(
+        met["class_entropy"][0], [stats.entropy([0.4, 0.6]), stats.entropy([0.03, 0.97])]
+    )
+    np.testing.assert_array_equal(met["correct"], [[True, True], [True, True]])  # tie -> class 0
+    np.testing.assert_array_equal(met["pose_error"][0], [1, 0])
+    np.testing.assert_array_equal(met["views_to_confidence"], [2, 3])  # censored at K + 1
+    np.testing.assert_allclose(met["response_sum"], [[1.0, 3.0], [0.5, -0.5]])
+    np.testing.assert_allclose(M.tp_minus_tn(met["response_sum"], [1, 0]), [0.5, 3.5])
+
+
+def test_calibration_and_bootstrap(rng):
+    # perfectly calibrated predictions have a small ECE; a constant 0.8 for always-true events has 0.2
+    p = rng.uniform(size=20000)
+    y = rng.uniform(size=20000) < p
+    assert M.expected_calibration_error(p, y) < 0.02
+    np.testing.assert_allclose(M.expected_calibration_error(np.full(50, 0.8), np.ones(50)), 0.2)
+    x = rng.normal(1.0, 2.0, size=400)
+    mean, lo, hi = M.bootstrap_mean(3, x, n_boot=2000)
+    se = x.std() / np.sqrt(400)
+    np.testing.assert_allclose([lo, hi], [mean - 1.96 * se, mean + 1.96 * se], atol=0.05)
+    d, dlo, dhi = M.paired_bootstrap_difference(3, x + 0.5, x, n_boot=200)
+    np.testing.assert_allclose([d, dlo, dhi], 0.5)  # identical pairs: no spread
+
+
+def test_experiment_entropy_planner_beats_random(table, model, key, tmp_path):
+    trials = sim.make_trials(key, table, "dpm", "car", 64)
+    methods = {
+        "naive_bayes": sim.Method(model, "naive_bayes", trials),
+        "instance": sim.Method(model, "instance", trials),
+    }
+    ds = sim.run_experiment(key, methods, ("sampled", "random"), category_names=CATS, n_samples=64)
+    assert ds["class_entropy"].dims == ("filter", "planner", "trial", "step")
+    comp = sim.compare_planners(ds)
+    # informative side views exist: entropy planning reaches confidence sooner, on the same trials
+    assert comp["naive_bayes"]["views_to_confidence_difference"]["hi"] < 0
+    # with one draw and tau = 0 the instance-aware filter is naive Bayes
+    np.testing.assert_allclose(
+        ds["p_present"].sel({"filter": "instance"}),
+        ds["p_present"].sel({"filter": "naive_bayes"}),
+        atol=1e-4,
+    )
+    summ = sim.summarise(ds, n_boot=100)
+    # after all A views both planners have seen the same views: same TP-minus-TN and entropy
+    last = summ.isel(step=-1)
+    np.testing.assert_allclose(
+        last["tp_minus_tn"].values[:, 0], last["tp_minus_tn"].values[:, 1], rtol=1e-5
+    )
+    assert np.all(summ["class_entropy_lo"] <= summ["class_entropy"] + 1e-12)
+    cal = sim.calibration(ds)
+    assert 0 <= cal["naive_bayes"]["ece"] < 0.2
+    path = sim.save_trials(ds, tmp_path / "trials.nc")
+    back = sim.load_trials(path)
+    np.testing.assert_array_equal(
+        back["views_to_confidence"].values, ds["views_to_confidence"].values
+    )
+    assert list(back["category"].values[:3]) == list(ds["category"].values[:3])
