@@ -90,6 +90,23 @@ def test_scoring_is_deterministic(sift, bof, astronaut):
         assert a == b == c
 
 
+def test_sift_and_bof_share_matching_on_same_model(sift, bof, astronaut):
+    assert sift.model_key == bof.model_key  # same positives and seed: same model views
+    feats = sift.prepare(astronaut, _full_box(astronaut))
+    s = sift.score_prepared(feats)
+    assert len(feats.cache) == 1
+    b = bof.score_prepared(feats)
+    assert len(feats.cache) == 1
+    fresh = sift.prepare(astronaut, _full_box(astronaut))
+    assert bof.score_prepared(fresh) == b and sift.score_prepared(fresh) == s
+    other = SiftMatcher("astronaut", ratio=0.7).fit(
+        0, [TrainingImage(astronaut, (0, 0, 512, 512), "astronaut", 0, 0, 0, 0)]
+    )
+    assert other.model_key != sift.model_key
+    other.score_prepared(feats)
+    assert len(feats.cache) == 2
+
+
 def test_prepare_is_target_independent(model_image, astronaut):
     other = SiftMatcher("coffee").fit(
         0, [TrainingImage(skimage.data.coffee(), (0, 0, 600, 400), "coffee", 0, 0, 0, 0)], []

@@ -45,7 +45,14 @@ from scrppl.detectors.base import (
     proto_object_window,
 )
 
-__all__ = ["SiftFeatures", "SiftMatcher", "BagOfFeatures", "extract_sift", "ratio_test_matches"]
+__all__ = [
+    "SiftFeatures",
+    "SiftMatcher",
+    "BagOfFeatures",
+    "extract_sift",
+    "ratio_test_matches",
+    "model_squared_norms",
+]
 
 _SIFT_CACHE: dict[int, Any] = {}
 
@@ -65,6 +72,10 @@ class SiftFeatures(NamedTuple):
         Resize factor: resized-window pixels per image pixel.
     size
         ``(width, height)`` of the resized window.
+    cache
+        Ratio-test matches already computed on these features, keyed by model (see
+        :attr:`SiftMatcher.model_key`): SIFT and bag-of-features detectors built from the same model
+        views share one matching per window. It only ever holds what recomputation would give.
     """
 
     points: np.ndarray
@@ -72,6 +83,7 @@ class SiftFeatures(NamedTuple):
     offset: tuple[int, int]
     scale: float
     size: tuple[int, int]
+    cache: dict | None = None
 
     def to_image(self, points: np.ndarray) -> np.ndarray:
         """Map ``(n, 2)`` resized-window points to image coordinates."""
@@ -146,11 +158,15 @@ def extract_sift(
             & (img_pts[:, 1] < y1)
         )
         pts, desc = pts[keep], desc[keep]
-    return SiftFeatures(pts, desc, (int(offset[0]), int(offset[1])), scale, (int(nw), int(nh)))
+    return SiftFeatures(pts, desc, (int(offset[0]), int(offset[1])), scale, (int(nw), int(nh)), {})
 
 
 def ratio_test_matches(
-    query: np.ndarray, model: np.ndarray, valid: np.ndarray, ratio: float
+    query: np.ndarray,
+    model: np.ndarray,
+    valid: np.ndarray,
+    ratio: float,
+    model_sqnorm: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lowe ratio-test matches of query descriptors against every model view at once.
 
@@ -165,6 +181,8 @@ def ratio_test_matches(
     ratio
         Lowe's ratio: a match is kept when ``d1 < ratio * d2`` (Euclidean distances to the nearest and
         second-nearest descriptor of the same view; a view with one descriptor has ``d2 = inf``).
+    model_sqnorm
+        Optional precomputed :func:`model_squared_norms` of the model.
 
     Returns
     -------
@@ -178,19 +196,28 @@ def ratio_test_matches(
     if q.shape[0] == 0 or n_views == 0:
         return np.zeros((q.shape[0], n_views), bool), np.zeros((q.shape[0], n_views), np.int64)
     flat = model.reshape(n_views * k, d)
-    d2 = (
-        np.einsum("qd,qd->q", q, q)[:, None]
-        + np.einsum("md,md->m", flat, flat)[None, :]
-        - 2.0 * (q @ flat.T)
-    )
-    d2 = np.maximum(d2, 0.0).reshape(q.shape[0], n_views, k)
-    d2 = np.where(valid[None, :, :], d2, np.inf)
+    if model_sqnorm is None:
+        model_sqnorm = model_squared_norms(model, valid)
+    # squared distances |q|^2 + |m|^2 - 2 q.m, in place; padding has |m|^2 = inf
+    d2 = q @ flat.T
+    d2 *= -2.0
+    d2 += np.einsum("qd,qd->q", q, q)[:, None]
+    d2 += model_sqnorm[None, :]
+    np.maximum(d2, 0.0, out=d2)
+    d2 = d2.reshape(q.shape[0], n_views, k)
     nearest = np.argmin(d2, axis=2)
     best = np.take_along_axis(d2, nearest[:, :, None], axis=2)[:, :, 0]
     np.put_along_axis(d2, nearest[:, :, None], np.inf, axis=2)
     second = d2.min(axis=2)
     accepted = np.isfinite(best) & (best < (ratio * ratio) * second)
     return accepted, nearest
+
+
+def model_squared_norms(model: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``(V * K,)`` squared norms of the flattened model descriptors, ``inf`` for padding."""
+    flat = np.asarray(model, dtype=np.float32).reshape(-1, model.shape[-1])
+    sq = np.einsum("md,md->m", flat, flat)
+    return np.where(np.asarray(valid).ravel(), sq, np.float32(np.inf)).astype(np.float32)
 
 
 def _balanced_subset(seed: int, azimuths: np.ndarray, n: int) -> np.ndarray:
@@ -262,6 +289,8 @@ class SiftMatcher(Detector):
         self._points: np.ndarray | None = None  # (V, K, 2)
         self._valid: np.ndarray | None = None  # (V, K)
         self._views: np.ndarray | None = None  # (V, 4): instance, azimuth, elevation, scale
+        self._sqnorm: np.ndarray | None = None  # (V * K,)
+        self._model_key: str | None = None
 
     @property
     def feature_key(self) -> tuple[Any, ...]:
@@ -329,6 +358,7 @@ class SiftMatcher(Detector):
                 f"{type(self).__name__} for {self.target!r}: no SIFT keypoints in any training view"
             )
         self._descriptors, self._points, self._valid = desc, pts, valid
+        self._sqnorm, self._model_key = None, None
         self._views = np.asarray(
             [
                 (
@@ -366,12 +396,35 @@ class SiftMatcher(Detector):
                 f"{type(self).__name__}.score_prepared needs SiftFeatures from prepare(), "
                 f"got {type(features).__name__}"
             )
-        return ratio_test_matches(
+        key = self.model_key
+        cache = features.cache
+        if cache is not None and key in cache:
+            return cache[key]
+        if self._sqnorm is None:
+            self._sqnorm = model_squared_norms(self._descriptors, self._valid)
+        out = ratio_test_matches(
             features.descriptors,
             self._descriptors,
             self._valid,
             float(self.hyperparameters["ratio"]),
+            self._sqnorm,
         )
+        if cache is not None:
+            cache[key] = out
+        return out
+
+    @property
+    def model_key(self) -> str:
+        """SHA-1 of the model descriptors and the ratio: equal keys give equal ratio-test matches."""
+        self.require_fitted()
+        if self._model_key is None:
+            import hashlib
+
+            h = hashlib.sha1(np.ascontiguousarray(self._descriptors).tobytes())
+            h.update(np.ascontiguousarray(self._valid).tobytes())
+            h.update(repr(float(self.hyperparameters["ratio"])).encode())
+            self._model_key = h.hexdigest()
+        return self._model_key
 
     def _verify(self, features: SiftFeatures, accepted: np.ndarray, nearest: np.ndarray, view: int):
         """RANSAC on one model view: ``(inlier count, (n, 2) inlier query points)``."""
@@ -451,6 +504,7 @@ class SiftMatcher(Detector):
         self._points = np.asarray(arrays["points"], np.float32)
         self._valid = np.asarray(arrays["valid"], bool)
         self._views = np.asarray(arrays["views"], np.int64)
+        self._sqnorm, self._model_key = None, None
 
 
 class BagOfFeatures(SiftMatcher):
