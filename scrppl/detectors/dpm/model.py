@@ -1,0 +1,327 @@
+"""The star-structured deformable part model: filters, scores and placements (FGMR, PAMI 2010).
+
+A mixture of components; component ``c`` has a root filter ``F0`` (``h x w`` HOG cells), ``P`` part filters
+``F_i`` (``s x s`` cells) applied one octave below the root (twice its resolution), anchors ``v_i`` and
+quadratic deformation weights ``d_i``, and a bias ``b``. The score of a root placed at cell ``p0`` of pyramid
+level ``l`` is (FGMR eq. 2-3; Meger et al. 2010 use it as their strongest detector, Sec. III-A)::
+
+    score(p0) = F0 . H_l(p0) + sum_i max_{p_i} [F_i . H_{l-oct}(p_i) - d_i . phi(p_i - (2 p0 + v_i))] + b
+
+with ``phi(dx, dy) = (dx, dx**2, dy, dy**2)``; the inner maxima are generalised distance transforms
+(:mod:`scrppl.detectors.dpm.dt`). With ``P = 0`` the model is a mixture of root filters: the root-only
+HOG template.
+
+The score is linear in the parameters given the latent choices (component, level, root position, part
+placements): :func:`placement_features` returns that feature vector, in the order of :func:`pack`, which
+is what the latent SVM (:mod:`scrppl.detectors.dpm.latent_svm`) trains.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from scrppl.detectors.dpm.dt import distance_transform
+from scrppl.detectors.dpm.hog import N_FEATURES, HogPyramid
+
+__all__ = [
+    "BIAS_FEATURE",
+    "Component",
+    "StarModel",
+    "LevelScores",
+    "filter_responses",
+    "level_scores",
+    "pyramid_scores",
+    "placement_features",
+    "pack",
+    "unpack",
+    "root_boxes",
+]
+
+#: The constant feature multiplying a component's bias weight (FGMR: a large constant so that the bias
+#: is barely regularised).
+BIAS_FEATURE = 10.0
+
+
+class Component(NamedTuple):
+    """One mixture component (an aspect/viewpoint) of a star model.
+
+    Attributes
+    ----------
+    root
+        ``(h, w, 32)`` root filter.
+    parts
+        ``(P, s, s, 32)`` part filters (``P`` may be 0).
+    anchors
+        ``(P, 2)`` int anchors ``(ay, ax)``: a part's rest position, in part-level cells, relative to
+        twice the root's top-left cell.
+    deformation
+        ``(P, 4)`` weights of ``(dx, dx**2, dy, dy**2)`` in the deformation cost.
+    bias
+        Scalar bias ``b``.
+    """
+
+    root: np.ndarray
+    parts: np.ndarray
+    anchors: np.ndarray
+    deformation: np.ndarray
+    bias: float
+
+
+class StarModel(NamedTuple):
+    """A mixture of star-structured components and the largest part displacement ``R`` (cells)."""
+
+    components: tuple[Component, ...]
+    max_displacement: int = 4
+
+    @property
+    def n_parts(self) -> int:
+        """Number of parts per component (0 for a root-only template)."""
+        return int(self.components[0].parts.shape[0]) if self.components else 0
+
+
+class LevelScores(NamedTuple):
+    """Scores of one component at one pyramid level.
+
+    Attributes
+    ----------
+    score
+        ``(Ho, Wo)`` total score for each root position (top-left cell, padded root-map coordinates).
+    part_y, part_x
+        ``(P, Ho, Wo)`` int part placements (top-left, padded part-map coordinates) or ``None`` when
+        placements were not requested.
+    """
+
+    score: np.ndarray
+    part_y: np.ndarray | None
+    part_x: np.ndarray | None
+
+
+def filter_responses(feat: np.ndarray, filters: np.ndarray) -> np.ndarray:
+    """Cross-correlation of a stack of same-sized filters with a feature map ("valid" positions).
+
+    ``out[k, y, x] = sum_{dy, dx, f} filters[k, dy, dx, f] * feat[y + dy, x + dx, f]``, computed as one
+    matrix product of every cell with every filter cell followed by ``h * w`` shifted additions.
+
+    Parameters
+    ----------
+    feat
+        ``(H, W, D)`` feature map.
+    filters
+        ``(K, h, w, D)`` filters.
+
+    Returns
+    -------
+    ``(K, H - h + 1, W - w + 1)`` responses (empty along an axis the filter does not fit).
+    """
+    k, fh, fw, d = filters.shape
+    hh, ww = feat.shape[0] - fh + 1, feat.shape[1] - fw + 1
+    if hh < 1 or ww < 1 or k == 0:
+        return np.zeros((k, max(hh, 0), max(ww, 0)), dtype=np.float32)
+    cells = feat.reshape(-1, d) @ filters.transpose(3, 1, 2, 0).reshape(d, fh * fw * k)
+    cells = cells.reshape(feat.shape[0], feat.shape[1], fh, fw, k)
+    out = np.zeros((hh, ww, k), dtype=np.float32)
+    for dy in range(fh):
+        for dx in range(fw):
+            out += cells[dy : dy + hh, dx : dx + ww, dy, dx]
+    return np.ascontiguousarray(out.transpose(2, 0, 1))
+
+
+def level_scores(
+    model: StarModel,
+    root_feat: np.ndarray,
+    part_feat: np.ndarray | None,
+    *,
+    placements: bool = False,
+    components: tuple[int, ...] | None = None,
+) -> list[LevelScores | None]:
+    """Scores of every root position of the chosen components at one pyramid level.
+
+    Parameters
+    ----------
+    model
+        The star model.
+    root_feat
+        ``(Hr, Wr, 32)`` root map of the level.
+    part_feat
+        ``(2 Hr + 2, 2 Wr + 2, 32)`` part map of the level (unused, may be ``None``, when ``P = 0``).
+    placements
+        Also return the part placements (argmax of the distance transforms).
+    components
+        Indices of the components to score (default all); the others are ``None`` in the result.
+
+    Returns
+    -------
+    list (one entry per component) of :class:`LevelScores`, ``None`` for components not scored or whose
+    root does not fit the level.
+    """
+    comps = range(len(model.components)) if components is None else components
+    out: list[LevelScores | None] = [None] * len(model.components)
+    n_parts = model.n_parts
+    values = dys = dxs = None
+    if n_parts > 0:
+        if part_feat is None:
+            raise ValueError("this model has parts but the pyramid has no part maps")
+        stack = np.concatenate([model.components[c].parts for c in comps], axis=0)
+        defs = np.concatenate([model.components[c].deformation for c in comps], axis=0)
+        q = filter_responses(part_feat, stack.astype(np.float32, copy=False))
+        values, dys, dxs = distance_transform(
+            q, defs.astype(np.float32), model.max_displacement, return_argmax=placements
+        )
+    for j, c in enumerate(comps):
+        comp = model.components[c]
+        r = filter_responses(root_feat, comp.root[None].astype(np.float32, copy=False))[0]
+        if r.size == 0:
+            continue
+        ho, wo = r.shape
+        total = r + np.float32(comp.bias)
+        py = px = None
+        if n_parts > 0:
+            if placements:
+                py = np.empty((n_parts, ho, wo), dtype=np.int64)
+                px = np.empty((n_parts, ho, wo), dtype=np.int64)
+            for i in range(n_parts):
+                k = j * n_parts + i
+                ay, ax = (int(v) for v in comp.anchors[i])
+                sl = (k, slice(ay, ay + 2 * ho - 1, 2), slice(ax, ax + 2 * wo - 1, 2))
+                total += values[sl]
+                if placements:
+                    base_y = ay + 2 * np.arange(ho)[:, None]
+                    base_x = ax + 2 * np.arange(wo)[None, :]
+                    py[i] = base_y + dys[sl]
+                    px[i] = base_x + dxs[sl]
+        out[c] = LevelScores(total, py, px)
+    return out
+
+
+def pyramid_scores(
+    model: StarModel, pyramid: HogPyramid, *, placements: bool = False
+) -> list[list[LevelScores | None]]:
+    """:func:`level_scores` at every level: ``out[level][component]``."""
+    parts = pyramid.part if model.n_parts > 0 else (None,) * len(pyramid.root)
+    if model.n_parts > 0 and len(pyramid.part) != len(pyramid.root):
+        raise ValueError("this model has parts but the pyramid was built without part maps")
+    return [
+        level_scores(model, r, p, placements=placements)
+        for r, p in zip(pyramid.root, parts, strict=True)
+    ]
+
+
+def root_boxes(
+    pyramid: HogPyramid, level: int, shape: tuple[int, int], root_shape: tuple[int, int]
+) -> np.ndarray:
+    """Window-pixel boxes of every root position at one level.
+
+    Parameters
+    ----------
+    pyramid
+        The pyramid.
+    level
+        Level index.
+    shape
+        ``(Ho, Wo)`` number of root positions.
+    root_shape
+        ``(h, w)`` root filter size in cells.
+
+    Returns
+    -------
+    ``(Ho, Wo, 4)`` boxes ``(x0, y0, x1, y1)`` in window pixels (not clipped).
+    """
+    fx, fy = pyramid.factors[level]
+    cs = pyramid.cell_size
+    oy, ox = (int(v) for v in pyramid.origins[level])
+    ys = (np.arange(shape[0]) - oy) * cs / fy
+    xs = (np.arange(shape[1]) - ox) * cs / fx
+    boxes = np.empty((shape[0], shape[1], 4))
+    boxes[..., 0] = xs[None, :]
+    boxes[..., 1] = ys[:, None]
+    boxes[..., 2] = xs[None, :] + root_shape[1] * cs / fx
+    boxes[..., 3] = ys[:, None] + root_shape[0] * cs / fy
+    return boxes
+
+
+def component_size(comp: Component) -> int:
+    """Number of parameters of a component in the :func:`pack` layout."""
+    return comp.root.size + comp.parts.size + comp.deformation.size + 1
+
+
+def pack(model: StarModel) -> list[np.ndarray]:
+    """The parameter vector of each component: ``[root, parts, deformation, bias / BIAS_FEATURE]``."""
+    return [
+        np.concatenate(
+            [c.root.ravel(), c.parts.ravel(), c.deformation.ravel(), [c.bias / BIAS_FEATURE]]
+        ).astype(np.float64)
+        for c in model.components
+    ]
+
+
+def unpack(model: StarModel, weights: list[np.ndarray]) -> StarModel:
+    """A model with the shapes and anchors of ``model`` and the parameters ``weights`` (see :func:`pack`)."""
+    comps = []
+    for c, w in zip(model.components, weights, strict=True):
+        if w.size != component_size(c):
+            raise ValueError(
+                f"component weight vector has {w.size} entries, expected {component_size(c)}"
+            )
+        i = 0
+        root = w[i : i + c.root.size].reshape(c.root.shape).astype(np.float32)
+        i += c.root.size
+        parts = w[i : i + c.parts.size].reshape(c.parts.shape).astype(np.float32)
+        i += c.parts.size
+        deformation = w[i : i + c.deformation.size].reshape(c.deformation.shape).astype(np.float64)
+        i += c.deformation.size
+        comps.append(Component(root, parts, c.anchors, deformation, float(w[i] * BIAS_FEATURE)))
+    return StarModel(tuple(comps), model.max_displacement)
+
+
+def placement_features(
+    comp: Component,
+    root_feat: np.ndarray,
+    part_feat: np.ndarray | None,
+    y: int,
+    x: int,
+    part_y: np.ndarray | None = None,
+    part_x: np.ndarray | None = None,
+) -> np.ndarray:
+    """The feature vector ``phi`` of one placement, so that ``score = pack(component) . phi``.
+
+    Parameters
+    ----------
+    comp
+        The component (for shapes and anchors).
+    root_feat, part_feat
+        The level's root and part maps.
+    y, x
+        Root position (top-left cell, padded root-map coordinates).
+    part_y, part_x
+        ``(P,)`` part positions (top-left, padded part-map coordinates).
+
+    Returns
+    -------
+    ``(component_size(comp),)`` float64 vector ``[root patch, part patches, -phi(displacements),
+    BIAS_FEATURE]``.
+    """
+    h, w = comp.root.shape[:2]
+    pieces = [root_feat[y : y + h, x : x + w].ravel()]
+    n_parts = comp.parts.shape[0]
+    if n_parts:
+        s = comp.parts.shape[1]
+        defs = np.empty((n_parts, 4))
+        for i in range(n_parts):
+            py, px = int(part_y[i]), int(part_x[i])
+            pieces.append(part_feat[py : py + s, px : px + s].ravel())
+            dy = py - (2 * y + int(comp.anchors[i, 0]))
+            dx = px - (2 * x + int(comp.anchors[i, 1]))
+            defs[i] = (dx, dx * dx, dy, dy * dy)
+        pieces.append(-defs.ravel())
+    pieces.append(np.array([BIAS_FEATURE]))
+    phi = np.concatenate([np.asarray(p, dtype=np.float64) for p in pieces])
+    if phi.size != component_size(comp):
+        raise ValueError("placement lies partly outside the feature maps")
+    return phi
+
+
+def feature_dim() -> int:
+    """HOG feature dimension per cell (32)."""
+    return N_FEATURES

@@ -1,0 +1,396 @@
+"""Deformable part model: HOG against scikit-image, distance transform against brute force, filters and
+placements against direct sums, latent-SVM training on a toy two-category set, persistence, errors."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+from scipy.signal import correlate
+from skimage.feature import hog as skimage_hog
+
+from scrppl.detectors.base import TrainingImage, load_detector
+from scrppl.detectors.dpm import (
+    DeformablePartModel,
+    HogTemplate,
+    azimuth_component,
+    build_pyramid,
+    cell_histograms,
+    distance_transform,
+    hog_features,
+)
+from scrppl.detectors.dpm.latent_svm import box_iou, initial_parts, svm_objective
+from scrppl.detectors.dpm.model import (
+    Component,
+    StarModel,
+    filter_responses,
+    pack,
+    placement_features,
+    pyramid_scores,
+    unpack,
+)
+
+# -- toy data: circles (target) vs crosses, random size, position, colour, on blurred noise ----------
+
+
+def _shape_image(rng: np.random.Generator, kind: str) -> TrainingImage:
+    h, w = 120, 160
+    img = cv2.GaussianBlur(rng.normal(128, 30, (h, w, 3)).clip(0, 255).astype(np.uint8), (5, 5), 2)
+    s = int(rng.integers(44, 70))
+    cx = int(rng.integers(s // 2 + 4, w - s // 2 - 4))
+    cy = int(rng.integers(s // 2 + 4, h - s // 2 - 4))
+    col = tuple(int(v) for v in rng.integers(0, 255, 3))
+    t = max(3, s // 8)
+    if kind == "circle":
+        cv2.circle(img, (cx, cy), s // 2, col, t)
+    else:
+        cv2.line(img, (cx - s // 2, cy), (cx + s // 2, cy), col, t)
+        cv2.line(img, (cx, cy - s // 2), (cx, cy + s // 2), col, t)
+    r = s // 2 + t // 2
+    return TrainingImage(
+        img, (cx - r, cy - r, cx + r + 1, cy + r + 1), kind, 0, int(rng.integers(8)), 1, 1
+    )
+
+
+def toy_set(seed: int, n: int) -> tuple[list[TrainingImage], list[TrainingImage]]:
+    rng = np.random.default_rng(seed)
+    return [_shape_image(rng, "circle") for _ in range(n)], [
+        _shape_image(rng, "cross") for _ in range(n)
+    ]
+
+
+SMALL = {
+    "n_components": 2,
+    "n_parts": 6,
+    "part_size": 4,
+    "root_cells": 6,
+    "canonical_size": 72,
+    "rounds": 3,
+    "n_background": 6,
+    "max_per_window": 12,
+}
+
+
+@pytest.fixture(scope="module")
+def toy_data():
+    return toy_set(0, 16), toy_set(1, 12)
+
+
+@pytest.fixture(scope="module")
+def trained_dpm(toy_data):
+    (pos, neg), _ = toy_data
+    return DeformablePartModel("circle", **SMALL).fit(0, pos, neg)
+
+
+# -- HOG -------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "image", [skimage.data.astronaut()[:203, :171], skimage.data.camera()[:97, :130]]
+)
+def test_cell_histograms_match_skimage(image):
+    """Unnormalised 9-bin unsigned cell histograms equal scikit-image's (L1-normalised 1x1 blocks)."""
+    ref = skimage_hog(
+        image,
+        orientations=9,
+        pixels_per_cell=(8, 8),
+        cells_per_block=(1, 1),
+        block_norm="L1",
+        feature_vector=False,
+        channel_axis=-1 if image.ndim == 3 else None,
+    )[:, :, 0, 0, :]
+    h = cell_histograms(image, 8, 9)
+    assert h.shape == ref.shape
+    # skimage averages over the 64 pixels of a cell, then divides by (L1 norm + 1e-5)
+    mine = h / (h.sum(axis=-1, keepdims=True) + 64 * 1e-5)
+    np.testing.assert_allclose(mine, ref, atol=1e-6)
+
+
+def test_bilinear_voting_matches_per_pixel_sum():
+    """FGMR's soft spatial binning equals an explicit per-pixel sum of bilinear votes."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (21, 27, 3)).astype(np.uint8)
+    got = cell_histograms(img, 4, 18, signed=True, interpolate=True, centred_bins=True)
+    # brute force: gradients of the dominant channel, nearest of 18 directions, bilinear cell weights
+    f = img.astype(float)
+    gy = np.zeros_like(f)
+    gx = np.zeros_like(f)
+    gy[1:-1] = f[2:] - f[:-2]
+    gx[:, 1:-1] = f[:, 2:] - f[:, :-2]
+    rows, cols = 21 // 4, 27 // 4
+    want = np.zeros((rows, cols, 18))
+    for y in range(rows * 4):
+        for x in range(cols * 4):
+            ch = np.argmax(gy[y, x] ** 2 + gx[y, x] ** 2)
+            dy, dx = gy[y, x, ch], gx[y, x, ch]
+            b = int(np.floor(np.mod(np.arctan2(dy, dx), 2 * np.pi) / (2 * np.pi / 18) + 0.5)) % 18
+            yp, xp = (y + 0.5) / 4 - 0.5, (x + 0.5) / 4 - 0.5
+            for cy in (int(np.floor(yp)), int(np.floor(yp)) + 1):
+                for cx in (int(np.floor(xp)), int(np.floor(xp)) + 1):
+                    if 0 <= cy < rows and 0 <= cx < cols:
+                        wgt = (1 - abs(yp - cy)) * (1 - abs(xp - cx))
+                        want[cy, cx, b] += wgt * np.hypot(dy, dx)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
+
+
+def test_hog_features_properties():
+    img = skimage.data.coffee()[:160, :200]
+    f = hog_features(img)
+    assert f.shape == (20, 25, 32) and f.dtype == np.float32
+    assert np.all(f >= 0) and np.all(f[:, :, :27] <= 4 * 0.5 * 0.2 + 1e-6)
+    assert np.all(f[:, :, 31] == 0)
+    # block normalisation: a global contrast change leaves the features (almost: the epsilon) unchanged
+    dim = img.astype(np.float32) * 0.25
+    assert np.abs(hog_features(dim) - f).max() < 1e-2
+    # a flipped image has mirrored features: unsigned orientation theta -> 180 - theta
+    flipped = hog_features(img[:, ::-1].copy())[:, ::-1, 18:27]
+    mirrored = f[:, :, 18:27][:, :, (-np.arange(9)) % 9]
+    assert np.abs(flipped - mirrored)[1:-1, 1:-1].mean() < 0.1 * f[:, :, 18:27].mean()
+
+
+def test_pyramid_layout():
+    window = skimage.data.chelsea()[50:250, 100:260]
+    pyr = build_pyramid(window, (100, 50), scales=(1.0, 0.5), canonical_size=96, pad=1, min_cells=9)
+    assert len(pyr.root) == len(pyr.part) == 2
+    for r, p in zip(pyr.root, pyr.part, strict=True):
+        assert p.shape[:2] == (2 * r.shape[0] + 2, 2 * r.shape[1] + 2)
+        assert min(r.shape[:2]) >= 9
+        assert np.all(r[0, :, 31] == 1) and np.all(r[:, 0, 31] == 1)  # padding is truncation
+    # longer side of the window maps to the canonical size at scale 1
+    assert np.isclose(pyr.factors[0, 1] * 200, 96, atol=1)
+
+
+# -- distance transform ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("radius", [0, 1, 3, 6])
+def test_distance_transform_equals_brute_force(radius):
+    rng = np.random.default_rng(radius)
+    score = rng.normal(size=(4, 9, 11))
+    score[0, 2, 3] = -np.inf  # -inf entries are allowed
+    d = np.column_stack(
+        [
+            rng.normal(size=4),
+            rng.uniform(0.01, 0.5, 4),
+            rng.normal(size=4),
+            rng.uniform(0.01, 0.5, 4),
+        ]
+    )
+    value, dy, dx = distance_transform(score, d, radius)
+    for k in range(4):
+        for y in range(9):
+            for x in range(11):
+                best, arg = -np.inf, None
+                for ty in range(-radius, radius + 1):
+                    for tx in range(-radius, radius + 1):
+                        if 0 <= y + ty < 9 and 0 <= x + tx < 11:
+                            c = score[k, y + ty, x + tx] - (
+                                d[k, 0] * tx + d[k, 1] * tx * tx + d[k, 2] * ty + d[k, 3] * ty * ty
+                            )
+                            if c > best:
+                                best, arg = c, (ty, tx)
+                assert np.isclose(value[k, y, x], best)
+                ty, tx = dy[k, y, x], dx[k, y, x]
+                achieved = score[k, y + ty, x + tx] - (
+                    d[k, 0] * tx + d[k, 1] * tx * tx + d[k, 2] * ty + d[k, 3] * ty * ty
+                )
+                assert np.isclose(achieved, best), (k, y, x, arg, (ty, tx))
+    v2, n1, n2 = distance_transform(score, d, radius, return_argmax=False)
+    assert n1 is None and n2 is None
+    np.testing.assert_array_equal(v2, value)
+
+
+# -- filters, scores and placements --------------------------------------------------------------
+
+
+def test_filter_responses_equal_correlation():
+    rng = np.random.default_rng(0)
+    feat = rng.normal(size=(13, 10, 32)).astype(np.float32)
+    filters = rng.normal(size=(3, 4, 5, 32)).astype(np.float32)
+    got = filter_responses(feat, filters)
+    for k in range(3):
+        want = correlate(feat.astype(float), filters[k].astype(float), mode="valid")[:, :, 0]
+        np.testing.assert_allclose(got[k], want, rtol=1e-4, atol=1e-4)
+
+
+def _random_model(rng, n_parts=6, part_size=4):
+    comps = []
+    for h, w in [(6, 5), (4, 6)]:
+        anchors = np.column_stack(
+            [
+                rng.integers(0, 2 * h - part_size + 1, n_parts),
+                rng.integers(0, 2 * w - part_size + 1, n_parts),
+            ]
+        )
+        comps.append(
+            Component(
+                rng.normal(size=(h, w, 32)).astype(np.float32) * 0.1,
+                rng.normal(size=(n_parts, part_size, part_size, 32)).astype(np.float32) * 0.1,
+                anchors,
+                np.column_stack([rng.normal(size=n_parts) * 0.05, np.full(n_parts, 0.1)] * 2)[
+                    :, [0, 1, 2, 3]
+                ],
+                float(rng.normal()),
+            )
+        )
+    return StarModel(tuple(comps), 3)
+
+
+def test_scores_equal_weights_dot_placement_features():
+    """The latent-SVM linearity: every score is pack(model) . phi(placement)."""
+    rng = np.random.default_rng(1)
+    model = _random_model(rng)
+    pyr = build_pyramid(
+        skimage.data.astronaut()[:180, :150], scales=(1.0, 0.8), canonical_size=80, min_cells=6
+    )
+    weights = pack(model)
+    for level, row in enumerate(pyramid_scores(model, pyr, placements=True)):
+        for c, ls in enumerate(row):
+            for y, x in [(0, 0), (ls.score.shape[0] - 1, ls.score.shape[1] - 1), (1, 2)]:
+                phi = placement_features(
+                    model.components[c],
+                    pyr.root[level],
+                    pyr.part[level],
+                    y,
+                    x,
+                    ls.part_y[:, y, x],
+                    ls.part_x[:, y, x],
+                )
+                assert np.isclose(phi @ weights[c], ls.score[y, x], atol=1e-4)
+    # unpack inverts pack
+    again = unpack(model, weights)
+    for a, b in zip(again.components, model.components, strict=True):
+        np.testing.assert_allclose(a.root, b.root)
+        np.testing.assert_allclose(a.deformation, b.deformation)
+        assert np.isclose(a.bias, b.bias)
+
+
+def test_svm_objective_gradient():
+    rng = np.random.default_rng(2)
+    w = [rng.normal(size=7), rng.normal(size=5)]
+    x = [rng.normal(size=(9, 7)), rng.normal(size=(4, 5))]
+    y = [np.sign(rng.normal(size=9)), np.sign(rng.normal(size=4))]
+    value, grads = svm_objective(w, x, y, C=0.7)
+    brute = 0.5 * sum(v @ v for v in w) + 0.7 * sum(
+        np.maximum(0, 1 - yy * (xx @ ww)).sum() for ww, xx, yy in zip(w, x, y, strict=True)
+    )
+    assert np.isclose(value, brute)
+    eps = 1e-6
+    for b in range(2):
+        for i in range(w[b].size):
+            wp = [v.copy() for v in w]
+            wp[b][i] += eps
+            num = (svm_objective(wp, x, y, C=0.7)[0] - value) / eps
+            assert np.isclose(num, grads[b][i], atol=1e-4)
+
+
+def test_initial_parts_cover_high_energy():
+    root = np.zeros((5, 6, 32), dtype=np.float32)
+    root[1:3, 3:5, 4] = 1.0  # one bright blob: rows 2..5, cols 6..9 at twice the resolution
+    parts, anchors = initial_parts(root, 4, 3)
+    assert parts.shape == (4, 3, 3, 32) and anchors.shape == (4, 2)
+    up = np.stack(
+        [cv2.resize(root[:, :, f], (12, 10), interpolation=cv2.INTER_LINEAR) for f in range(32)], 2
+    )
+    energy = np.sum(np.maximum(up, 0) ** 2, axis=2)
+    sums = {(y, x): energy[y : y + 3, x : x + 3].sum() for y in range(8) for x in range(10)}
+    assert np.isclose(
+        energy[anchors[0, 0] : anchors[0, 0] + 3, anchors[0, 1] : anchors[0, 1] + 3].sum(),
+        max(sums.values()),
+    )
+    covered = np.zeros((10, 12), bool)
+    for (ay, ax), part in zip(anchors, parts, strict=True):
+        covered[ay : ay + 3, ax : ax + 3] = True
+        np.testing.assert_allclose(
+            part, up[ay : ay + 3, ax : ax + 3]
+        )  # parts start as the upsampled root
+    assert covered[2:6, 6:10].all()
+
+
+def test_azimuth_components_fold_symmetric_views():
+    assert [azimuth_component(a, 3) for a in range(8)] == [0, 1, 2, 1, 0, 1, 2, 1]
+    assert [azimuth_component(a, 1) for a in range(8)] == [0] * 8
+    assert set(azimuth_component(a, 2) for a in range(8)) == {0, 1}
+
+
+def test_box_iou():
+    boxes = np.array([[0, 0, 10, 10], [5, 5, 15, 15], [20, 20, 30, 30]], dtype=float)
+    np.testing.assert_allclose(box_iou(boxes, (0, 0, 10, 10)), [1.0, 25 / 175, 0.0])
+
+
+# -- training, scoring, persistence ----------------------------------------------------------------
+
+
+def test_latent_svm_objective_decreases(trained_dpm):
+    obj = trained_dpm.history_.objective
+    assert len(obj) == SMALL["rounds"] + 1
+    assert obj[-1] < obj[0]
+    assert min(obj[1:]) < obj[0]
+
+
+def test_dpm_separates_two_categories(trained_dpm, toy_data):
+    _, (test_pos, test_neg) = toy_data
+    sp = np.array([trained_dpm.score(t.image, t.box) for t in test_pos])
+    sn = np.array([trained_dpm.score(t.image, t.box) for t in test_neg])
+    auc = np.mean(sp[:, None] > sn[None, :])
+    assert auc >= 0.95, (sp, sn)
+    assert trained_dpm.model_.n_parts == 6
+
+
+def test_score_is_deterministic_and_prepared_shares(trained_dpm, toy_data):
+    _, (test_pos, _) = toy_data
+    t = test_pos[0]
+    a = trained_dpm.score(t.image, t.box)
+    b = trained_dpm.score(t.image, t.box)
+    assert a == b
+    feats = trained_dpm.prepare(t.image, t.box)
+    assert trained_dpm.score_prepared(feats) == a
+
+
+def test_detect_finds_the_object(trained_dpm, toy_data):
+    _, (test_pos, _) = toy_data
+    t = test_pos[1]
+    dets = trained_dpm.detect(t.image, t.box, threshold=-np.inf)
+    assert dets and dets[0].score == pytest.approx(trained_dpm.score(t.image, t.box))
+    assert box_iou(np.asarray(dets[0].box, dtype=float), t.box) > 0.4
+    assert all(d1.score >= d2.score for d1, d2 in zip(dets, dets[1:], strict=False))
+
+
+def test_save_load_gives_identical_scores(trained_dpm, toy_data, tmp_path):
+    _, (test_pos, test_neg) = toy_data
+    path = trained_dpm.save(tmp_path / "dpm-circle.npz")
+    again = load_detector(path)
+    assert isinstance(again, DeformablePartModel) and again.family == "dpm"
+    assert again.hyperparameters == trained_dpm.hyperparameters
+    assert again.threshold_ == trained_dpm.threshold_
+    for t in (test_pos[0], test_neg[0]):
+        assert again.score(t.image, t.box) == trained_dpm.score(t.image, t.box)
+
+
+def test_errors(trained_dpm, toy_data):
+    _, (test_pos, _) = toy_data
+    t = test_pos[0]
+    fresh = DeformablePartModel("circle")
+    with pytest.raises(RuntimeError, match="circle"):
+        fresh.score(t.image, t.box)
+    with pytest.raises(ValueError, match="empty window"):
+        trained_dpm.score(t.image, (10, 10, 10, 40))
+    with pytest.raises(ValueError, match="unreadable image"):
+        trained_dpm.score(np.zeros((5,)), t.box)
+    with pytest.raises(FileNotFoundError):
+        trained_dpm.score("no/such/image.png", t.box)
+    with pytest.raises(ValueError, match="prepare"):
+        trained_dpm.score_prepared(np.zeros(3))
+    other = DeformablePartModel("circle", canonical_size=64)
+    other._set_state(trained_dpm._get_state())
+    with pytest.raises(ValueError, match="pyramid settings"):
+        other.score_prepared(trained_dpm.prepare(t.image, t.box))
+    with pytest.raises(ValueError, match="unknown hyperparameters"):
+        DeformablePartModel("circle", n_partz=3)
+    with pytest.raises(ValueError, match="no positive"):
+        DeformablePartModel("circle").fit(0, [], toy_set(5, 2)[1])
+
+
+def test_hog_template_is_registered():
+    assert HogTemplate.family == "hog" and HogTemplate("x").hyperparameters["n_parts"] == 0
