@@ -171,3 +171,134 @@ def test_face_texture_puts_the_face_at_the_centre_column():
     np.testing.assert_allclose(np.median(centre, 0), skin, atol=0.08)
     np.testing.assert_allclose(np.median(back, 0), hair, atol=0.08)
     assert centre.max(1).min() < 0.15  # pupils
+
+
+def _extent(parts):
+    return np.ptp(_verts(parts), axis=0)
+
+
+def test_bicycle_is_thin_from_the_front_and_lies_in_the_xz_plane(instances):
+    for seed in SEEDS:
+        parts = instances[("bicycle", seed)]
+        ex = _extent(parts)
+        assert ex[0] == pytest.approx(1.0) and ex[1] < 0.45 * ex[0], ex
+        # the wheels (tyres) are discs in the xz plane: tiny y extent, large x and z extents
+        (tyres,) = _by_name(parts, "tyres")
+        tex = np.ptp(tyres.mesh.vertices, axis=0)
+        assert tex[1] < 0.1 * tex[2] and tex[0] > 0.9
+        # the handlebar (fittings) is at the front, the saddle behind the middle
+        (saddle,) = _by_name(parts, "saddle")
+        assert saddle.mesh.vertices[:, 0].min() < 0.0
+        (fittings,) = _by_name(parts, "fittings")
+        assert fittings.mesh.vertices[:, 0].max() > 0.1
+
+
+def _mirror_x_similarity(parts, bins=12):
+    """How alike the silhouettes seen from +x and -x are: 1 = the object is front/back symmetric.
+
+    Compares the occupancy of (y, z) cells by the front half and by the back half of the object.
+    """
+    v = _verts(parts)
+    front, back = v[v[:, 0] > 0], v[v[:, 0] < 0]
+    lo, hi = v[:, 1:].min(0), v[:, 1:].max(0) + 1e-9
+    occ = []
+    for half in (front, back):
+        cells = np.floor((half[:, 1:] - lo) / (hi - lo) * bins).astype(int)
+        grid = np.zeros((bins, bins), bool)
+        grid[cells[:, 0], cells[:, 1]] = True
+        occ.append(grid)
+    return (occ[0] & occ[1]).sum() / (occ[0] | occ[1]).sum()
+
+
+def test_car_front_and_back_alike_but_unlike_the_side(instances):
+    for seed in SEEDS:
+        parts = instances[("car", seed)]
+        ex = _extent(parts)
+        assert ex[0] == pytest.approx(1.0) and 0.3 < ex[1] < 0.55 and ex[2] < 0.5
+        # lights at both ends, at similar heights, lateral positions mirrored
+        (heads,) = _by_name(parts, "headlights")
+        (tails,) = _by_name(parts, "taillights")
+        assert heads.mesh.vertices[:, 0].min() > 0.45 and tails.mesh.vertices[:, 0].max() < -0.45
+        np.testing.assert_allclose(np.ptp(heads.mesh.vertices[:, 1]), np.ptp(tails.mesh.vertices[:, 1]), rtol=0.05)
+        # plates on both ends, wheels and mirrors on the sides
+        _by_name(parts, "front_plate"), _by_name(parts, "rear_plate")
+        (tyres,) = _by_name(parts, "tyres")
+        ty = tyres.mesh.vertices
+        assert (ty[:, 1] > 0.1).any() and (ty[:, 1] < -0.1).any()
+        assert (ty[:, 0] > 0.2).any() and (ty[:, 0] < -0.2).any()
+        assert _mirror_x_similarity(parts) > 0.75
+
+
+def test_iron_cord_on_one_side_and_pointed_front(instances):
+    for seed in SEEDS:
+        parts = instances[("iron", seed)]
+        (cord,) = _by_name(parts, "cord")
+        (sole,) = _by_name(parts, "soleplate")
+        v = sole.mesh.vertices
+        cy = 0.5 * (v[:, 1].min() + v[:, 1].max())  # the iron's midline
+        assert cord.mesh.vertices[:, 1].max() - cy > 0.1  # the cord leaves to the left (+y) ...
+        assert cord.mesh.vertices[:, 1].mean() - cy > 0.03  # ... and never to the right
+        assert cord.mesh.vertices[:, 1].min() - cy > -0.07  # (its plug's thickness aside)
+        xs = v[:, 0]
+        width_front = np.ptp(v[xs > xs.min() + 0.85 * np.ptp(xs), 1])
+        width_back = np.ptp(v[xs < xs.min() + 0.15 * np.ptp(xs), 1])
+        assert width_front < 0.5 * width_back  # the nose (+x) is pointed, the back flat
+
+
+def test_toaster_lever_on_one_end_label_on_front(instances):
+    for seed in SEEDS:
+        parts = instances[("toaster", seed)]
+        (lever,) = _by_name(parts, "lever")
+        (body,) = _by_name(parts, "body")
+        assert lever.mesh.vertices[:, 1].min() > body.mesh.vertices[:, 1].max() - 0.05
+        (label,) = _by_name(parts, "label")
+        n = _area_weighted_normal(label.mesh)
+        assert n[0] > 0.99 * np.linalg.norm(n)
+
+
+def test_stapler_front_differs_from_back(instances):
+    for seed in SEEDS:
+        parts = instances[("stapler", seed)]
+        (arm,) = _by_name(parts, "arm")
+        v = arm.mesh.vertices
+        x = v[:, 0]
+        h_front = v[x > x.min() + 0.8 * np.ptp(x), 2].max()
+        h_back = v[x < x.min() + 0.2 * np.ptp(x), 2].max()
+        (base,) = _by_name(parts, "base")
+        z0 = base.mesh.vertices[:, 2].max()
+        assert h_front - z0 > 1.1 * (h_back - z0)  # the arm climbs from the hinge to the head
+        (magazine,) = _by_name(parts, "magazine")  # the anvil at the front
+        assert magazine.mesh.vertices[:, 0].max() > x.max() - 0.02
+
+
+def test_head_faces_plus_x(instances):
+    for seed in SEEDS:
+        parts = instances[("head", seed)]
+        (face,) = _by_name(parts, "face")
+        v, uv = np.asarray(face.mesh.vertices), face.uv
+        # the nose is the head's most forward point, and the texture's face column (u = 0.5) is there
+        tip = np.argmax(v[:, 0])
+        assert abs(uv[tip, 0] - 0.5) < 0.05
+        cx, cy = 0.5 * (v[:, 0].max() + v[:, 0].min()), 0.5 * (v[:, 1].max() + v[:, 1].min())
+        assert v[tip, 0] - cx > 1.05 * (v[:, 1].max() - cy)  # the nose sticks out beyond the skull
+        # texture coordinates with u near 0.5 lie on the +x side; near 0 or 1 on the -x side
+        front = v[np.abs(uv[:, 0] - 0.5) < 0.2, 0].mean()
+        back = v[np.abs(uv[:, 0] - 0.5) > 0.3, 0].mean()
+        assert front - back > 0.3 * np.ptp(v[:, 0])
+        # shoulders are wide along y (seen from the front), narrow along x
+        (torso,) = _by_name(parts, "torso")
+        t = np.ptp(torso.mesh.vertices, axis=0)
+        assert t[1] > 2 * t[0]
+
+
+def test_shoe_toe_front_heel_back(instances):
+    for seed in SEEDS:
+        parts = instances[("shoe", seed)]
+        v = _verts(parts)
+        x = v[:, 0]
+        front = v[x > x.min() + 0.75 * np.ptp(x)]
+        back = v[x < x.min() + 0.25 * np.ptp(x)]
+        assert back[:, 2].max() > 1.3 * front[:, 2].max()  # low toe, high heel/collar/shaft
+        (opening,) = _by_name(parts, "opening")
+        assert opening.mesh.vertices[:, 0].mean() < 0.5 * (x.min() + x.max())  # the opening is at the back
+        assert _mirror_x_similarity(parts) < 0.6

@@ -167,7 +167,7 @@ def stapler(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     n = 14
     x = np.linspace(-0.5 * L, 0.5 * L - 0.01, n)
     s = (x - x[0]) / (x[-1] - x[0])
-    rise = rng.uniform(0.35, 0.55)  # the arm climbs from the hinge to the head at the front
+    rise = rng.uniform(0.45, 0.6)  # the arm climbs from the hinge to the head at the front
     top = base_t + 0.015 + arm_h * (1 - rise + rise * s**0.6) + arch * np.sin(np.pi * s)
     # polygon: along the bottom from the nose to the hinge, up, along the top to the nose
     bottom = [(0.5 * L - 0.004, base_t + 0.006), (-0.5 * L + 0.012, base_t + 0.012)]

@@ -152,7 +152,8 @@ def shoe(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         fo = np.concatenate([np.column_stack([x[front], -half[front]]), np.column_stack([x[front][::-1], half[front][::-1]])[1:-1]])
         sole = [m.extrude(fo, 0.0, sole_t)]
         arch = m.polyline_tube(np.column_stack([x[3:17], np.zeros(14), sole_top[3:17] - 0.004]), 0.006, 6)
-        heel_block = m.loft(m.rounded_rect(0.04, 0.05, 0.015, 4), [1.0, 0.6], [0.0, heel_rise + 0.001], offsets=np.array([[x[2] + 0.02, 0.0], [x[2] + 0.015, 0.0]]))
+        heel_w = rng.uniform(0.012, 0.03)  # stiletto to block heel
+        heel_block = m.loft(m.rounded_rect(0.035, 0.04, 0.012, 4), [heel_w / 0.035, 1.0], [0.0, heel_rise + 0.001], offsets=np.array([[x[2] + 0.012, 0.0], [x[2] + 0.018, 0.0]]))
         sole += [arch, heel_block]
         parts.append(Part(m.concat(sole), sole_color, specular=0.6, name="sole"))
     else:

@@ -19,7 +19,12 @@ _LIGHT_PLASTICS = ((0.85, 0.85, 0.83), (0.78, 0.79, 0.8), (0.93, 0.92, 0.88))
 
 
 def _pick(rng: np.random.Generator, options):
-    return options[int(rng.integers(len(options)))]
+    """One of ``options``; colours (RGB tuples) get a small seeded jitter so no two match exactly."""
+    choice = options[int(rng.integers(len(options)))]
+    if isinstance(choice, tuple) and len(choice) == 3 and all(isinstance(c, float) for c in choice):
+        jitter = rng.normal(0.0, 0.03, 3) + rng.normal(0.0, 0.04)
+        return tuple(float(c) for c in np.clip(np.asarray(choice) + jitter, 0.0, 1.0))
+    return choice
 
 
 def _seed(rng: np.random.Generator) -> int:
@@ -132,7 +137,8 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     # the dock: a base with a front lip; the phone rests on it, tilted back about the y axis
     dock_h = rng.uniform(0.008, 0.015)
     dock_d = rng.uniform(0.06, 0.09)
-    dock_color = _pick(rng, _DARK_PLASTICS + _LIGHT_PLASTICS + ((0.55, 0.36, 0.2),))
+    wood_dock = rng.random() < 0.2
+    dock_color = _pick(rng, _DARK_PLASTICS + _LIGHT_PLASTICS)
     phone_parts = []
     for mesh in (slab, front, lens):
         mesh = m.rotate(mesh, -tilt, (0, 1, 0))
@@ -143,7 +149,6 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         m.box((0.006, w * 1.15, 0.012), (x_phone + 0.5 * t / np.cos(tilt) + 0.004, 0.0, dock_h + 0.006)),
         m.rotate(m.box((0.006, w * 0.5, 0.6 * h), (x_phone - t / 2 - 0.003, 0.0, dock_h + 0.3 * h)), -tilt, (0, 1, 0), (x_phone, 0, dock_h)),
     ]
-    wood_dock = dock_color == (0.55, 0.36, 0.2)
     parts = [
         Part(phone_parts[0], body, specular=0.5, name="body"),
         Part(phone_parts[1], _mean_color(tex), texture=tex, uv=uv, specular=0.7, name="screen"),
