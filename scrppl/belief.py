@@ -126,7 +126,11 @@ def _check_view(model: ResponseModel, phi, e, s) -> None:
     if not _is_concrete(phi, e, s):
         return
     n_a, n_e, n_s = model.mu.shape[2:5]
-    for name, value, size in (("robot azimuth", phi, n_a), ("elevation", e, n_e), ("scale", s, n_s)):
+    for name, value, size in (
+        ("robot azimuth", phi, n_a),
+        ("elevation", e, n_e),
+        ("scale", s, n_s),
+    ):
         arr = np.asarray(value)
         if not np.issubdtype(arr.dtype, np.integer):
             raise ValueError(f"{name} index must be an integer, got dtype {arr.dtype}")
@@ -151,7 +155,9 @@ def _log_prior(prior, shape) -> jax.Array:
     prior = jnp.asarray(prior)
     if prior.shape != tuple(shape):
         raise ValueError(f"prior must have shape (O, A) = {tuple(shape)}, got {prior.shape}")
-    if _is_concrete(prior) and (np.any(np.asarray(prior) < 0) or not np.isfinite(np.asarray(prior)).all()):
+    if _is_concrete(prior) and (
+        np.any(np.asarray(prior) < 0) or not np.isfinite(np.asarray(prior)).all()
+    ):
         raise ValueError("prior must be finite and non-negative")
     logp = jnp.log(prior)
     return logp - logsumexp(logp)
@@ -222,7 +228,9 @@ def naive_bayes_log_likelihood(model: ResponseModel, f, phi, e, s) -> jax.Array:
     return logsumexp(lp, axis=0) - math.log(mu.shape[0])
 
 
-def naive_bayes_update(model: ResponseModel, belief: NaiveBayesBelief, f, phi, e=0, s=0) -> NaiveBayesBelief:
+def naive_bayes_update(
+    model: ResponseModel, belief: NaiveBayesBelief, f, phi, e=0, s=0
+) -> NaiveBayesBelief:
     """One naive-Bayes step: ``log b(o, theta) += log p(f | o, (phi - theta) mod A, e, s)``, renormalised.
 
     This is the recursive form of Meger et al. (2010), eq. 3; the normalisation is a ``logsumexp`` so the
@@ -261,12 +269,16 @@ def instance_init(model: ResponseModel, prior=None) -> InstanceBelief:
     """
     n, o, a = model.mu.shape[:3]
     log_prior = _log_prior(prior, (o, a))
-    var = jnp.broadcast_to((jnp.asarray(model.tau) ** 2)[:, :, None], (n, o, a)).astype(model.mu.dtype)
+    var = jnp.broadcast_to((jnp.asarray(model.tau) ** 2)[:, :, None], (n, o, a)).astype(
+        model.mu.dtype
+    )
     zeros = jnp.zeros((n, o, a), model.mu.dtype)
     return InstanceBelief(log_prior, zeros, var, zeros)
 
 
-def instance_update(model: ResponseModel, belief: InstanceBelief, f, phi, e=0, s=0) -> InstanceBelief:
+def instance_update(
+    model: ResponseModel, belief: InstanceBelief, f, phi, e=0, s=0
+) -> InstanceBelief:
     """One instance-aware step: a scalar Kalman update of ``u`` per draw and state.
 
     For draw ``n`` and state ``(o, theta)`` with ``a = (phi - theta) mod A``, the response is

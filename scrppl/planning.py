@@ -71,7 +71,9 @@ def _check_objective(objective: str) -> None:
 # candidate sets
 
 
-def candidate_views(current, visited, available, mode: str = "azimuth") -> tuple[jax.Array, jax.Array]:
+def candidate_views(
+    current, visited, available, mode: str = "azimuth"
+) -> tuple[jax.Array, jax.Array]:
     """Candidate robot views and which of them may be chosen.
 
     Parameters
@@ -157,6 +159,19 @@ def _unnormalised_entropy(log_joint, objective: str) -> jax.Array:
     return jnp.log(z) - qlogq / z
 
 
+def _log_joint_after(mixture: Mixture, f) -> jax.Array:
+    """Unnormalised ``log p(o, theta | F, f)`` for responses ``f`` (any shape) -> ``f.shape + (O, A)``.
+
+    The Gaussian log density is written as ``c + a (f - m)^2`` with ``a = -1 / (2 v)`` and
+    ``c = log w - log(v) / 2`` computed once per component (the ``2 pi`` constant cancels).
+    """
+    a = -0.5 / mixture.var
+    c = mixture.log_weight - 0.5 * jnp.log(mixture.var)
+    f = jnp.asarray(f)[..., None, None, None]
+    lp = c + a * (f - mixture.mean) ** 2
+    return lp[..., 0, :, :] if mixture.mean.shape[0] == 1 else logsumexp(lp, axis=-3)
+
+
 @partial(jax.jit, static_argnames=("objective",))
 def posterior_entropy(mixture: Mixture, f, objective: str = "joint") -> jax.Array:
     """Entropy of the belief after observing response(s) ``f`` (any shape), shape ``f.shape``.
@@ -164,15 +179,20 @@ def posterior_entropy(mixture: Mixture, f, objective: str = "joint") -> jax.Arra
     The posterior is ``p(o, theta | F, f) ∝ sum_n w[n, o, theta] Normal(f; mean, var)``.
     """
     _check_objective(objective)
-    f = jnp.asarray(f)[..., None, None, None]
-    lp = mixture.log_weight - 0.5 * ((f - mixture.mean) ** 2 / mixture.var + jnp.log(mixture.var))
-    joint = lp[..., 0, :, :] if mixture.mean.shape[0] == 1 else logsumexp(lp, axis=-3)
-    return _unnormalised_entropy(joint, objective)
+    return _unnormalised_entropy(_log_joint_after(mixture, f), objective)
 
 
 def _sample_responses(key: jax.Array, mixture: Mixture, n_samples: int) -> jax.Array:
+    """``M`` responses from the predictive mixture: a component by inverse CDF, then its Gaussian.
+
+    Uses ``2 M`` random numbers (a uniform and a normal per sample), the same for every candidate
+    when called with the same key.
+    """
     k_comp, k_eps = jax.random.split(key)
-    comp = jax.random.categorical(k_comp, mixture.log_weight.ravel(), shape=(n_samples,))
+    w = jnp.exp(mixture.log_weight.ravel())
+    cdf = jnp.cumsum(w)
+    u = jax.random.uniform(k_comp, (n_samples,), mixture.mean.dtype) * cdf[-1]
+    comp = jnp.minimum(jnp.searchsorted(cdf, u, side="right"), w.shape[0] - 1)
     eps = jax.random.normal(k_eps, (n_samples,), mixture.mean.dtype)
     return mixture.mean.ravel()[comp] + jnp.sqrt(mixture.var.ravel()[comp]) * eps
 
@@ -206,7 +226,9 @@ def sampled_expected_entropy(
 
 
 @partial(jax.jit, static_argnames=("objective", "order"))
-def quadrature_expected_entropy(mixture: Mixture, objective: str = "joint", order: int = 32) -> jax.Array:
+def quadrature_expected_entropy(
+    mixture: Mixture, objective: str = "joint", order: int = 32
+) -> jax.Array:
     """Exact expected posterior entropy by Gauss-Hermite quadrature over the response.
 
     ``E_f[H] = sum_k w_k integral Normal(f; m_k, v_k) H(f) df`` with ``order`` nodes per mixture component
@@ -302,7 +324,9 @@ def expected_entropies(
         return jax.vmap(lambda m: quadrature_expected_entropy(m, objective, order))(mixtures)
     if planner == "plug_in":
         return jax.vmap(lambda m: plug_in_expected_entropy(m, objective))(mixtures)
-    raise ValueError(f"unknown entropy planner {planner!r}; expected 'sampled', 'quadrature' or 'plug_in'")
+    raise ValueError(
+        f"unknown entropy planner {planner!r}; expected 'sampled', 'quadrature' or 'plug_in'"
+    )
 
 
 @partial(jax.jit, static_argnames=("planner", "objective", "mode", "n_samples", "order"))

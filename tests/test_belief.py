@@ -63,10 +63,20 @@ def brute_force_instance(params, f, phi, ee, ss, prior=None):
                 lim = 10 * tau[n, o]
                 z = integrate.quad(integrand, -lim, lim, epsabs=0, epsrel=1e-10, limit=200)[0]
                 m1 = integrate.quad(
-                    lambda u, g=integrand: g(u, power=1), -lim, lim, epsabs=0, epsrel=1e-10, limit=200
+                    lambda u, g=integrand: g(u, power=1),
+                    -lim,
+                    lim,
+                    epsabs=0,
+                    epsrel=1e-10,
+                    limit=200,
                 )[0]
                 m2 = integrate.quad(
-                    lambda u, g=integrand: g(u, power=2), -lim, lim, epsabs=0, epsrel=1e-10, limit=200
+                    lambda u, g=integrand: g(u, power=2),
+                    -lim,
+                    lim,
+                    epsabs=0,
+                    epsrel=1e-10,
+                    limit=200,
                 )[0]
                 post[o, theta] += z / n_n
                 moments[n, o, theta] = m1 / z, m2 / z - (m1 / z) ** 2
@@ -89,7 +99,9 @@ def test_naive_bayes_equals_enumeration(rng, use_prior):
     f, phi, ee, ss = random_observations(rng, 6, 4, 2, 1)
     prior = rng.uniform(0.1, 1.0, size=(2, 4)) if use_prior else None
     b = run_filter("naive_bayes", model, f, phi, ee, ss, prior)
-    ref = brute_force_naive_bayes(params, f, phi, ee, ss, None if prior is None else prior / prior.sum())
+    ref = brute_force_naive_bayes(
+        params, f, phi, ee, ss, None if prior is None else prior / prior.sum()
+    )
     np.testing.assert_allclose(np.asarray(B.joint_log_belief(b)), ref, atol=2e-4)
     np.testing.assert_allclose(np.asarray(B.joint_belief(b)).sum(), 1.0, atol=1e-5)
 
@@ -111,7 +123,9 @@ def test_instance_filter_with_zero_tau_and_one_draw_is_naive_bayes(rng):
     f, phi, ee, ss = random_observations(rng, 7, 4, 2, 1)
     nb = run_filter("naive_bayes", model, f, phi, ee, ss)
     ia = run_filter("instance", model, f, phi, ee, ss)
-    np.testing.assert_allclose(np.asarray(B.joint_log_belief(ia)), np.asarray(nb.log_belief), atol=1e-4)
+    np.testing.assert_allclose(
+        np.asarray(B.joint_log_belief(ia)), np.asarray(nb.log_belief), atol=1e-4
+    )
 
 
 def test_repeated_view_evidence_is_bounded_for_instance_filter(rng):
@@ -236,7 +250,9 @@ def test_mixture_posterior_equals_filter_update(rng):
     for kind in B.FILTERS:
         b = run_filter(kind, model, f, phi, ee, ss)
         mix = B.predictive_mixture(model, b, 2, 1, 0)
-        np.testing.assert_allclose(float(jnp.exp(logsumexp(np.asarray(mix.log_weight)))), 1.0, atol=1e-5)
+        np.testing.assert_allclose(
+            float(jnp.exp(logsumexp(np.asarray(mix.log_weight)))), 1.0, atol=1e-5
+        )
         post = B.mixture_posterior(mix, jnp.float32(0.3))
         after = B.joint_log_belief(B.update(model, b, jnp.float32(0.3), 2, 1, 0))
         np.testing.assert_allclose(np.asarray(post), np.asarray(after), atol=1e-5, err_msg=kind)

@@ -23,8 +23,14 @@ def observed_belief(rng, kind, model, k=2):
     a, e, s = model.mu.shape[2:]
     b = B.init_belief(kind, model)
     for _ in range(k):
-        b = B.update(model, b, jnp.float32(rng.normal()), int(rng.integers(a)), int(rng.integers(e)),
-                     int(rng.integers(s)))
+        b = B.update(
+            model,
+            b,
+            jnp.float32(rng.normal()),
+            int(rng.integers(a)),
+            int(rng.integers(e)),
+            int(rng.integers(s)),
+        )
     return b
 
 
@@ -156,15 +162,18 @@ def test_choose_view_is_argmin_and_respects_masks_and_motion_cost(rng, key):
     available = np.ones((8, 1, 1), bool)
     available[6] = False
     current = jnp.array([0, 0, 0])
-    view, found, scores = P.choose_view(key, model, b, current, visited, available, planner="quadrature")
+    view, found, scores = P.choose_view(
+        key, model, b, current, visited, available, planner="quadrature"
+    )
     views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
     h = np.array(P.expected_entropies(None, model, b, views, "quadrature"))
     h[[0, 5, 6]] = np.inf
     assert bool(found) and int(view[0]) == int(np.argmin(h))
     np.testing.assert_allclose(np.asarray(scores), h, rtol=1e-5)
     # a large motion cost makes the nearest valid azimuth win (1 or 7, one bin away)
-    view, _, _ = P.choose_view(key, model, b, current, visited, available, planner="quadrature",
-                               motion_cost=100.0)
+    view, _, _ = P.choose_view(
+        key, model, b, current, visited, available, planner="quadrature", motion_cost=100.0
+    )
     assert int(view[0]) in (1, 7)
     # nothing left to see
     view, found, _ = P.choose_view(key, model, b, current, np.ones((8, 1, 1), bool), available)
@@ -194,7 +203,9 @@ def test_planner_vmaps_over_trials(rng, key):
         lambda k, b: P.choose_view(k, model, b, jnp.array([0, 0, 0]), visited, available)[0]
     )(keys, stacked)
     for t in range(3):
-        single = P.choose_view(keys[t], model, beliefs[t], jnp.array([0, 0, 0]), visited, available)[0]
+        single = P.choose_view(
+            keys[t], model, beliefs[t], jnp.array([0, 0, 0]), visited, available
+        )[0]
         np.testing.assert_array_equal(np.asarray(batched[t]), np.asarray(single))
 
 
