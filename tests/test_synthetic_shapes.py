@@ -99,11 +99,14 @@ def test_parts_face_outward(category, instances):
     """Each part's signed volume is positive: normals point out, so lighting is right.
 
     Parts are unions of closed surfaces (seam vertices duplicated for texturing) and flat decals;
-    an inside-out surface would make the signed volume negative.
+    an inside-out surface would make the signed volume negative. Volumes are taken about a point
+    inside the object, so an outward-facing decal counts positive.
     """
     for seed in SEEDS[:3]:
-        for p in instances[(category, seed)]:
-            tri = np.asarray(p.mesh.vertices)[p.mesh.faces]
+        parts = instances[(category, seed)]
+        inside = _verts(parts).mean(0)  # a point inside the object, seen by every decal's front
+        for p in parts:
+            tri = np.asarray(p.mesh.vertices)[p.mesh.faces] - inside
             volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
             assert volume > -1e-12, f"{category} {seed} part {p.name!r} is inside out"
 
@@ -141,6 +144,22 @@ def test_mouse_buttons_and_cable_at_front(instances):
         # the highest point of the body is behind its middle
         top = shell.mesh.vertices[np.argmax(shell.mesh.vertices[:, 2])]
         assert top[0] < 0.5 * (xs.min() + xs.max())
+
+
+@pytest.mark.parametrize("normal", ["+x", "-x", "+y", "-y"])
+def test_decal_quads_are_not_mirrored(normal):
+    """A texture on a quad reads correctly for a viewer facing it: u = 0 on the viewer's left,
+    v = 0 at the bottom (so labels and screens are never mirrored or upside down)."""
+    from scrppl.datasets.synthetic.categories import _mesh
+
+    quad, uv = _mesh.quad((0.0, 0.0, 0.0), normal, 2.0, 1.0)
+    n = {"+x": [1, 0, 0], "-x": [-1, 0, 0], "+y": [0, 1, 0], "-y": [0, -1, 0]}[normal]
+    np.testing.assert_allclose(quad.face_normals, np.tile(n, (2, 1)), atol=1e-12)
+    # a viewer at +n looking back along -n, up +z: their right is (-n) x z
+    right = np.cross(-np.asarray(n, float), [0.0, 0.0, 1.0])
+    v = np.asarray(quad.vertices)
+    np.testing.assert_allclose(np.sign(v @ right), 2 * uv[:, 0] - 1)
+    np.testing.assert_allclose(np.sign(v[:, 2]), 2 * uv[:, 1] - 1)
 
 
 def test_textures_are_deterministic_and_seed_dependent():

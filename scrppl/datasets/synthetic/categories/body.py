@@ -68,6 +68,24 @@ def head(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         ears.append(ear)
     neck, _ = m.lathe(np.array([[0.045, shoulder_h - 0.01], [0.042, shoulder_h + neck_h], [0.04, z_head - 0.3 * az]]) * [rng.uniform(0.9, 1.1), 1], 18)
     parts.append(Part(m.concat(ears + [neck]), tuple(np.asarray(skin) * 0.95), specular=0.2, smooth=True, name="skin"))
+    if style != "bald":  # hair volume: a shell around the skull, from the hairline to the nape
+        cap_nu, cap_nv = 28, 7
+        cphi = np.linspace(-np.pi, np.pi, cap_nu, endpoint=False)
+        hairline = np.deg2rad(rng.uniform(45.0, 55.0))
+        nape = np.deg2rad(rng.uniform(-30.0, -10.0) if style == "short" else -40.0)
+        low = hairline - (hairline - nape) * (np.abs(cphi) / np.pi) ** 0.8  # (nu,)
+        frac = np.linspace(0.0, 1.0, cap_nv)
+        CT = low[:, None] + (0.5 * np.pi - low[:, None]) * frac[None, :]
+        CP = np.broadcast_to(cphi[:, None], CT.shape)
+        bulk = rng.uniform(1.05, 1.12)  # a concentric, larger ellipsoid never cuts the skull
+        cap_pts = np.stack([
+            ax * bulk * np.cos(CT) * np.cos(CP),
+            ay * bulk * np.cos(CT) * np.sin(CP),
+            z_head + az * bulk * np.sin(CT),
+        ], -1)
+        cap, cap_uv = m.grid_surface(cap_pts, close_u=True)
+        hair_tex = tx.fabric(_seed(rng), hair, 32, 64)
+        parts.append(Part(cap, _mean_color(hair_tex), texture=hair_tex, uv=cap_uv, specular=0.3, smooth=True, name="hair_cap"))
     if style == "long":  # hair falling behind the head onto the shoulders
         hair_mesh = m.loft(
             m.superellipse(0.04, ay * 0.95, 16, 2.5),

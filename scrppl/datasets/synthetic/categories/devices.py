@@ -54,7 +54,7 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     pw, ph = W + 2 * bezel, H + 2 * bezel + (rng.uniform(0.0, 0.03))
     zc = z0 + 0.5 * ph
     panel = m.box((depth, pw, ph), (0.0, 0.0, zc))
-    shell = [panel]
+    shell, vents = [panel], []
     if crt:
         back_depth = rng.uniform(0.28, 0.4) * W
         tube = m.extrude_profile_y(
@@ -66,6 +66,10 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     else:
         back = m.box((0.03, 0.6 * pw, 0.55 * ph), (-depth / 2 - 0.015, 0.0, zc - 0.05 * ph))
         shell.append(back)
+        # ventilation slots along the top of the back housing
+        n_vents = int(rng.integers(5, 12))
+        for yv in np.linspace(-0.22 * pw, 0.22 * pw, n_vents):
+            vents.append(m.box((0.003, 0.25 * pw / n_vents, 0.1 * ph), (-depth / 2 - 0.0315, yv, zc + 0.12 * ph)))
     # the stand
     stand_kind = "crt" if crt else _pick(rng, ("pedestal", "plate", "vshape", "arm"))
     neck_x = -depth / 2 - (0.03 if not crt else 0.2 * W)
@@ -96,6 +100,8 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         Part(m.concat(stand), accent, specular=0.4, name="stand"),
         Part(quad, _mean_color(screen_tex), texture=screen_tex, uv=uv, specular=0.6, name="screen"),
     ]
+    if vents:
+        parts.append(Part(m.concat(vents), tuple(0.3 * np.asarray(body) + 0.02), specular=0.1, name="vents"))
     if bezel > 0.015 and rng.random() < 0.8:  # brand name on the lower bezel
         lab = tx.label(_seed(rng), body, (0.8, 0.8, 0.82), 24, 96, logo=False)
         lq, luv = m.quad((depth / 2 + 0.002, 0.0, z0 + 0.5 * bezel), "+x", 0.8 * bezel * 4, 0.8 * bezel)
