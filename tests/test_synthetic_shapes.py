@@ -321,3 +321,15 @@ def test_shoe_toe_front_heel_back(instances):
         (opening,) = _by_name(parts, "opening")
         assert opening.mesh.vertices[:, 0].mean() < 0.5 * (x.min() + x.max())  # the opening is at the back
         assert _mirror_x_similarity(parts) < 0.6
+
+
+@pytest.mark.parametrize("facing", [1, -1])
+def test_wheel_discs_face_outward_and_are_not_mirrored(facing):
+    from scrppl.datasets.synthetic.categories import _mesh
+
+    disc, uv = _mesh.disc_y((0.0, 0.0, 0.0), 1.0, facing, 12)
+    np.testing.assert_allclose(disc.face_normals[:, 1], facing, atol=1e-12)
+    right = np.cross([0.0, -facing, 0.0], [0.0, 0.0, 1.0])  # the facing viewer's right
+    v = np.asarray(disc.vertices)
+    np.testing.assert_allclose(uv[:, 0] - 0.5, 0.5 * (v @ right), atol=1e-12)
+    np.testing.assert_allclose(uv[:, 1] - 0.5, 0.5 * v[:, 2], atol=1e-12)

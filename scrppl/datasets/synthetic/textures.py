@@ -19,6 +19,7 @@ __all__ = [
     "face",
     "fabric",
     "grille",
+    "hubcap",
     "keypad_phone",
     "label",
     "license_plate",
@@ -338,6 +339,26 @@ def grille(seed: int, color=(0.08, 0.08, 0.09), height: int = 32, width: int = 9
             cv2.line(img, (x, 0), (x + height, height), bar, 1)
             cv2.line(img, (x + height, 0), (x, height), bar, 1)
     cv2.circle(img, (width // 2, height // 2), height // 5, (200, 200, 205), -1, cv2.LINE_AA)
+    return img
+
+
+def hubcap(seed: int, color=(0.75, 0.75, 0.78), size: int = 64) -> np.ndarray:
+    """A wheel's face: a metal disc with 5 to 10 spokes (dark gaps between them) and a centre badge."""
+    rng = np.random.default_rng(seed)
+    img = _canvas(size, size, (0.05, 0.05, 0.05))
+    c, r = size // 2, size // 2 - 1
+    cv2.circle(img, (c, c), r, _c(color), -1, cv2.LINE_AA)
+    n = int(rng.integers(5, 11))
+    gap = _c(np.asarray(color) * 0.15)
+    phase = rng.uniform(0, 2 * np.pi)
+    for k in range(n):
+        a = phase + 2 * np.pi * (k + 0.5) / n
+        pts = []
+        for rad, da in ((0.35, -0.25), (0.85, -0.5 * np.pi / n), (0.85, 0.5 * np.pi / n), (0.35, 0.25)):
+            pts.append([c + rad * r * np.cos(a + da * 0.6), c + rad * r * np.sin(a + da * 0.6)])
+        cv2.fillPoly(img, [np.asarray(pts, np.int32)], gap, cv2.LINE_AA)
+    cv2.circle(img, (c, c), int(0.92 * r), _c(np.asarray(color) * 0.6), 1, cv2.LINE_AA)
+    cv2.circle(img, (c, c), max(2, r // 6), _c(rng.random(3) * 0.5 + 0.3), -1, cv2.LINE_AA)
     return img
 
 

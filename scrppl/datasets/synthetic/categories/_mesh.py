@@ -15,6 +15,7 @@ __all__ = [
     "box",
     "concat",
     "cylinder",
+    "disc_y",
     "ellipsoid",
     "extrude",
     "grid_surface",
@@ -85,6 +86,28 @@ def cylinder(p0, p1, radius: float, sections: int = 16) -> trimesh.Trimesh:
         radius=float(radius), segment=np.array([p0, p1], dtype=float), sections=int(sections)
     )
     return make_mesh(m.vertices, m.faces)
+
+
+def disc_y(center, radius: float, facing: int, n: int = 16) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Flat disc in an xz plane facing +y (``facing = 1``) or -y (``facing = -1``), with uv coordinates.
+
+    The texture's right is the viewer's right, its up is +z (see `quad`).
+
+    Returns
+    -------
+    mesh : trimesh.Trimesh (a fan of ``n`` triangles)
+    uv : (n + 1, 2) float array
+    """
+    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    ring = np.column_stack([radius * np.cos(a), np.zeros(n), radius * np.sin(a)])
+    verts = np.concatenate([[[0.0, 0.0, 0.0]], ring]) + np.asarray(center, float)
+    i = np.arange(1, n + 1)
+    j = np.where(i == n, 1, i + 1)
+    # viewer at +y looks along -y, their right is -x; at -y their right is +x
+    u = 0.5 - 0.5 * facing * np.concatenate([[0.0], np.cos(a)])
+    v = 0.5 + 0.5 * np.concatenate([[0.0], np.sin(a)])
+    faces = np.stack([np.zeros(n, int), j, i], 1) if facing > 0 else np.stack([np.zeros(n, int), i, j], 1)
+    return make_mesh(verts, faces), np.column_stack([u, v])
 
 
 def grid_surface(points: np.ndarray, close_u: bool = False) -> tuple[trimesh.Trimesh, np.ndarray]:

@@ -93,7 +93,7 @@ def car(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     ]
     # wheels and hubcaps
     tyre_w = W * rng.uniform(0.17, 0.22)
-    tyres, hubs, tyre_uv = [], [], []
+    tyres, hubs, tyre_uv, hub_uv = [], [], [], []
     tread_seed = _seed(rng)
     hub_color = _pick(rng, ((0.75, 0.75, 0.78), (0.2, 0.2, 0.22), (0.55, 0.55, 0.6)))
     for xc in (x_rw, x_fw):
@@ -102,9 +102,12 @@ def car(rng: np.random.Generator, tex_seed: int) -> list[Part]:
             mesh, uv, tread_tex = _wheel_y((xc, yc, r), r, tyre_w, tread_seed)
             tyres.append(mesh)
             tyre_uv.append(uv)
-            hubs.append(m.cylinder((xc, yc, r), (xc, yc + sgn * (0.5 * tyre_w + 0.004), r), 0.68 * r, 12))
+            disc, disc_uv = m.disc_y((xc, yc + sgn * (0.5 * tyre_w + 0.003), r), 0.7 * r, sgn, 16)
+            hubs.append(disc)
+            hub_uv.append(disc_uv)
     parts.append(Part(m.concat(tyres), (0.08, 0.08, 0.08), texture=tread_tex, uv=np.concatenate(tyre_uv), specular=0.1, name="tyres"))
-    parts.append(Part(m.concat(hubs), hub_color, specular=0.8, name="hubs"))
+    hub_tex = tx.hubcap(_seed(rng), hub_color)
+    parts.append(Part(m.concat(hubs), _mean_color(hub_tex), texture=hub_tex, uv=np.concatenate(hub_uv), specular=0.8, name="hubs"))
     # lights: similar arrangement front and back, white/amber at the front, red at the back
     light_w = W * rng.uniform(0.16, 0.25)
     light_h = rng.uniform(0.025, 0.045)
