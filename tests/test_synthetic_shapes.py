@@ -245,7 +245,7 @@ def test_car_front_and_back_alike_but_unlike_the_side(instances):
         ty = tyres.mesh.vertices
         assert (ty[:, 1] > 0.1).any() and (ty[:, 1] < -0.1).any()
         assert (ty[:, 0] > 0.2).any() and (ty[:, 0] < -0.2).any()
-        assert _mirror_x_similarity(parts) > 0.75
+        assert _mirror_x_similarity(parts) > 0.7  # 0.75-1.0 over 30 seeds; shoes 0.08-0.47
 
 
 def test_iron_cord_on_one_side_and_pointed_front(instances):
@@ -320,7 +320,7 @@ def test_shoe_toe_front_heel_back(instances):
         assert back[:, 2].max() > 1.3 * front[:, 2].max()  # low toe, high heel/collar/shaft
         (opening,) = _by_name(parts, "opening")
         assert opening.mesh.vertices[:, 0].mean() < 0.5 * (x.min() + x.max())  # the opening is at the back
-        assert _mirror_x_similarity(parts) < 0.6
+        assert _mirror_x_similarity(parts) < 0.55  # 0.08-0.47 over 30 seeds; cars 0.75-1.0
 
 
 @pytest.mark.parametrize("facing", [1, -1])
