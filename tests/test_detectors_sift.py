@@ -127,15 +127,29 @@ def test_ratio_test_against_brute_force():
     valid = np.ones((4, 6), bool)
     valid[3, 3:] = False
     valid[2, 1:] = False  # view 2 has one descriptor: second distance is infinite
-    acc, nearest = ratio_test_matches(q, model, valid, 0.8)
+    acc, nearest = ratio_test_matches(q, model, valid, 0.8, unique=False)
+    best = np.zeros((17, 4))
     for i in range(17):
         for v in range(4):
             d = np.linalg.norm(model[v][valid[v]] - q[i], axis=1)
             order = np.argsort(d)
             d2 = d[order[1]] if len(d) > 1 else np.inf
+            best[i, v] = d[order[0]]
             assert nearest[i, v] == np.flatnonzero(valid[v])[order[0]]
             assert acc[i, v] == (d[order[0]] < 0.8 * d2)
     assert acc[2, 1] and acc[:, 2].all()
+    # one-to-one: per (view, model keypoint) only the closest accepted query survives
+    uacc, unearest = ratio_test_matches(q, model, valid, 0.8, unique=True)
+    np.testing.assert_array_equal(unearest, nearest)
+    for v in range(4):
+        for k in np.unique(nearest[:, v]):
+            rivals = np.flatnonzero(acc[:, v] & (nearest[:, v] == k))
+            kept = np.flatnonzero(uacc[:, v] & (nearest[:, v] == k))
+            if rivals.size == 0:
+                assert kept.size == 0
+            else:
+                assert kept.tolist() == [rivals[np.argmin(best[rivals, v])]]
+    assert acc[:, 2].sum() > 1 and uacc[:, 2].sum() == 1  # view 2 has one keypoint
 
 
 def test_model_views_balanced_over_azimuth():

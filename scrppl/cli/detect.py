@@ -8,7 +8,8 @@ Writes under ``--out``:
 * ``detectors/quality.json`` -- average precision per family x category on the test split and the
   azimuth dependence of every detector;
 * ``figures/fig1-<target>.png`` -- the paper's Fig. 1 for one test instance of every target;
-* ``figures/responses-<family>.png`` -- mean response by azimuth, positives vs negatives.
+* ``figures/responses-<family>.png`` -- mean response by azimuth, positives vs negatives, on the
+  held-out (fit and test) instances.
 """
 
 from __future__ import annotations
@@ -203,7 +204,7 @@ def write_figures(dataset, detectors, table, folder: Path) -> list[Path]:
             fig.savefig(tmp, dpi=110)
         written.append(path)
     for family in families:
-        fig = plot_mean_response_by_azimuth(table, family)
+        fig = plot_mean_response_by_azimuth(table, family, split=("fit", "test"))
         path = folder / f"responses-{family}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)

@@ -11,14 +11,16 @@ category. A query proto-object window is matched against every model view:
 2. **Ratio-test matches** against each model view separately (Lowe's test: the nearest model descriptor of
    that view is closer than ``ratio`` times the second nearest). All views are matched at once: one
    matrix product of the query descriptors with the padded ``(V, K, 128)`` model, then the two smallest
-   distances per (query keypoint, model view).
+   distances per (query keypoint, model view). Matches are made one-to-one: of several query keypoints
+   matched to the same model keypoint only the closest is kept.
 3. **Bag-of-features** (:class:`BagOfFeatures`): score = the largest number of ratio-test matches with
    any one model view -- no geometric verification, as in the paper (*not* vector-quantised words with an
    SVM).
 4. **SIFT matching** (:class:`SiftMatcher`): the ``n_verify`` model views with most matches are verified by
    fitting a fundamental matrix with RANSAC (``cv2.findFundamentalMat``, ``FM_RANSAC``, reprojection
    threshold ``ransac_threshold`` pixels, the OpenCV RNG seeded before every call, so a score is
-   reproducible); score = the largest inlier count. **Degenerate case:** a view with fewer than
+   reproducible; OpenCV's inlier mask is read only when a matrix was found); score = the largest inlier
+   count. **Degenerate case:** a view with fewer than
    ``min_matches`` (8, the minimum of the eight-point algorithm) ratio-test matches, or for which RANSAC
    finds no model, contributes 0 inliers; a window with no keypoints scores 0.
 
@@ -44,6 +46,7 @@ from scrppl.detectors.base import (
     as_rgb_image,
     proto_object_window,
 )
+from scrppl.detectors.dpm._blas import single_threaded_blas
 
 __all__ = [
     "SiftFeatures",
@@ -167,6 +170,7 @@ def ratio_test_matches(
     valid: np.ndarray,
     ratio: float,
     model_sqnorm: np.ndarray | None = None,
+    unique: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lowe ratio-test matches of query descriptors against every model view at once.
 
@@ -183,6 +187,10 @@ def ratio_test_matches(
         second-nearest descriptor of the same view; a view with one descriptor has ``d2 = inf``).
     model_sqnorm
         Optional precomputed :func:`model_squared_norms` of the model.
+    unique
+        Keep matches one-to-one: when several query keypoints pass the test with the same model
+        keypoint, only the closest is kept (ties: the lowest query index). Without this a few generic
+        model keypoints collect many matches, which inflates counts and makes RANSAC degenerate.
 
     Returns
     -------
@@ -210,6 +218,16 @@ def ratio_test_matches(
     np.put_along_axis(d2, nearest[:, :, None], np.inf, axis=2)
     second = d2.min(axis=2)
     accepted = np.isfinite(best) & (best < (ratio * ratio) * second)
+    if unique:
+        # one-to-one: of the query keypoints matched to the same model keypoint, keep the closest
+        qi, vi = np.nonzero(accepted)
+        if qi.size:
+            key = vi * k + nearest[qi, vi]
+            order = np.lexsort((best[qi, vi], key))
+            ks = key[order]
+            first = order[np.r_[True, ks[1:] != ks[:-1]]]
+            accepted = np.zeros_like(accepted)
+            accepted[qi[first], vi[first]] = True
     return accepted, nearest
 
 
@@ -261,6 +279,8 @@ class SiftMatcher(Detector):
         Fewer ratio-test matches than this score 0 (8: the eight-point minimum).
     ransac_threshold
         RANSAC reprojection threshold in resized-window pixels.
+    ransac_iterations
+        Maximum RANSAC iterations per verified view.
     """
 
     family: ClassVar[str] = "sift"
@@ -274,6 +294,7 @@ class SiftMatcher(Detector):
         "n_verify": 3,
         "min_matches": 8,
         "ransac_threshold": 3.0,
+        "ransac_iterations": 500,
     }
     verify: ClassVar[bool] = True
 
@@ -282,7 +303,14 @@ class SiftMatcher(Detector):
         hp = self.hyperparameters
         if not 0 < float(hp["ratio"]) <= 1:
             raise ValueError(f"ratio must lie in (0, 1], got {hp['ratio']}")
-        for name in ("window_side", "n_features", "max_model_views", "n_verify", "min_matches"):
+        for name in (
+            "window_side",
+            "n_features",
+            "max_model_views",
+            "n_verify",
+            "min_matches",
+            "ransac_iterations",
+        ):
             if int(hp[name]) < 1:
                 raise ValueError(f"{name} must be a positive integer, got {hp[name]}")
         self._descriptors: np.ndarray | None = None  # (V, K, 128)
@@ -402,13 +430,15 @@ class SiftMatcher(Detector):
             return cache[key]
         if self._sqnorm is None:
             self._sqnorm = model_squared_norms(self._descriptors, self._valid)
-        out = ratio_test_matches(
-            features.descriptors,
-            self._descriptors,
-            self._valid,
-            float(self.hyperparameters["ratio"]),
-            self._sqnorm,
-        )
+        # a small product: OpenBLAS threads cost more than they gain (many times more on a busy machine)
+        with single_threaded_blas():
+            out = ratio_test_matches(
+                features.descriptors,
+                self._descriptors,
+                self._valid,
+                float(self.hyperparameters["ratio"]),
+                self._sqnorm,
+            )
         if cache is not None:
             cache[key] = out
         return out
@@ -437,11 +467,17 @@ class SiftMatcher(Detector):
         p2 = np.ascontiguousarray(self._points[view, nearest[q_idx, view]], dtype=np.float32)
         cv2.setRNGSeed(0)
         f_mat, mask = cv2.findFundamentalMat(
-            p1, p2, cv2.FM_RANSAC, float(self.hyperparameters["ransac_threshold"]), 0.99
+            p1,
+            p2,
+            cv2.FM_RANSAC,
+            float(self.hyperparameters["ransac_threshold"]),
+            0.99,
+            int(self.hyperparameters["ransac_iterations"]),
         )
-        if f_mat is None or mask is None:
+        if f_mat is None or mask is None or f_mat.shape != (3, 3):
+            # no model found: OpenCV may leave the mask uninitialised then, so it is not read
             return 0, np.zeros((0, 2), np.float32)
-        inl = mask.ravel().astype(bool)
+        inl = mask.ravel() == 1
         return int(inl.sum()), p1[inl]
 
     def _best(self, features: SiftFeatures) -> tuple[float, np.ndarray]:

@@ -116,7 +116,11 @@ def _moments_by_azimuth(part: xr.DataArray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plot_mean_response_by_azimuth(
-    table: xr.Dataset, detector: str, *, split: str | None = None, n_columns: int = 5
+    table: xr.Dataset,
+    detector: str,
+    *,
+    split: str | Sequence[str] | None = None,
+    n_columns: int = 5,
 ) -> Figure:
     """Mean response (± one sd) by azimuth for positives and negatives, one panel per target.
 
@@ -127,7 +131,8 @@ def plot_mean_response_by_azimuth(
     detector
         Which detector (family) to show.
     split
-        Use instances of this split only (``None``: all).
+        Use instances of this split (or these splits) only (``None``: all). Held-out splits
+        (``("fit", "test")``) avoid training images, which matchers recognise trivially.
     n_columns
         Panels per row.
 
@@ -140,8 +145,9 @@ def plot_mean_response_by_azimuth(
             f"detector {detector!r} not in the response table (it has {list(table['detector'].values)})"
         )
     score = table["score"].sel(detector=detector)
-    if split is not None:
-        score = score.where(table["split"] == split)
+    splits = [split] if isinstance(split, str) else split
+    if splits is not None:
+        score = score.where(table["split"].isin(list(splits)))
     targets = [str(t) for t in table["target"].values]
     deg = table["azimuth"].values * 360.0 / table.sizes["azimuth"]
     ncol = min(n_columns, len(targets))
@@ -169,5 +175,6 @@ def plot_mean_response_by_azimuth(
             ax.set_xlabel("azimuth (°)")
         if k == 0:
             ax.legend(fontsize=7)
-    fig.suptitle(f"{detector}: mean response by azimuth" + (f" ({split} split)" if split else ""))
+    which = f" ({', '.join(splits)} split{'s' if len(splits) > 1 else ''})" if splits else ""
+    fig.suptitle(f"{detector}: mean response by azimuth{which}")
     return fig

@@ -1,0 +1,202 @@
+"""Detector throughput and the projected wall time of the full default response table.
+
+Measures, on a dataset (``--root``; by default a synthetic one with 3 categories x 3 instances x the full
+8 x 3 x 3 view grid, so that models are as large as in the default table), for every detector family:
+
+* training time per target (``views="all"``);
+* per image: loading, ``prepare`` (shared by all targets of a family, or by SIFT and BoF together), and
+  ``score_prepared`` per target -- serially in one process;
+* windows (image x target scores) per second, serial and with ``score_dataset(workers=2)``;
+* the projected wall time of the default table (10 categories x 10 instances x 72 views = 7,200
+  images, 10 targets, every family) and where the time goes.
+
+Writes ``benchmarks/results/detectors.json``. Run::
+
+    python benchmarks/bench_detectors.py [--root DATASET] [--families sift,bof,dpm] [--n-images 40]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results" / "detectors.json"
+FULL_IMAGES = 7200
+FULL_TARGETS = 10
+
+
+def _dataset(args):
+    from scrppl.datasets.core import MultiviewDataset
+
+    if args.root is not None:
+        return MultiviewDataset.load(args.root)
+    from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic
+    from scrppl.views import ViewGrid
+
+    # the full grid and 3 instances (1 train): models as large as the default table's (48 views)
+    full = SyntheticConfig.for_profile("full")
+    config = SyntheticConfig(categories=full.categories[:3], n_instances=3, grid=ViewGrid())
+    root = args.cache or Path(tempfile.mkdtemp(prefix="bench-detectors-"))
+    return make_synthetic(root, config, args.seed, progress=False)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--root", type=Path, default=None)
+    p.add_argument("--cache", type=Path, default=None, help="folder for the generated dataset")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--families", default="sift,bof,dpm,hog")
+    p.add_argument("--n-images", type=int, default=40)
+    p.add_argument("--parallel-instances", type=int, default=4)
+    p.add_argument("--max-negatives", type=int, default=None)
+    p.add_argument("--out", type=Path, default=RESULTS)
+    args = p.parse_args(argv)
+
+    from scrppl.detectors import detector_class
+    from scrppl.detectors.scoring import _groups, score_dataset
+    from scrppl.detectors.train import DEFAULT_MAX_NEGATIVES, train_detectors
+
+    families = []
+    for fam in args.families.split(","):
+        try:
+            detector_class(fam)
+            families.append(fam)
+        except ValueError as err:
+            print(f"skipping {fam}: {err}", file=sys.stderr)
+    t = time.perf_counter()
+    dataset = _dataset(args)
+    t_data = time.perf_counter() - t
+    targets = dataset.categories
+    max_neg = DEFAULT_MAX_NEGATIVES if args.max_negatives is None else args.max_negatives
+
+    train_s = {}
+    detectors = {}
+    for fam in families:
+        t = time.perf_counter()
+        detectors.update(
+            train_detectors(
+                dataset, [fam], targets, views="all", seed=0, progress=False, max_negatives=max_neg
+            )
+        )
+        train_s[fam] = (time.perf_counter() - t) / len(targets)
+
+    # serial per-image costs
+    rng = np.random.default_rng(0)
+    rows = dataset.index.iloc[
+        np.sort(rng.choice(len(dataset.index), min(args.n_images, len(dataset.index)), replace=False))
+    ]
+    groups = _groups(detectors)
+    load_s = 0.0
+    prep = {i: 0.0 for i in range(len(groups))}
+    score = {fam: 0.0 for fam in families}
+    for _, row in rows.iterrows():
+        t = time.perf_counter()
+        image, box = dataset.load_image(row), dataset.bbox(row)
+        load_s += time.perf_counter() - t
+        for gi, (preparer, members) in enumerate(groups):
+            t = time.perf_counter()
+            feats = preparer.prepare(image, box)
+            prep[gi] += time.perf_counter() - t
+            for fi, _ti, det in members:
+                t = time.perf_counter()
+                det.score_prepared(feats)
+                score[families[fi]] += time.perf_counter() - t
+    n = len(rows)
+    n_t = len(targets)
+    group_names = ["+".join(sorted({families[fi] for fi, _, _ in m})) for _, m in groups]
+    per_image = {
+        "load_ms": 1e3 * load_s / n,
+        "prepare_ms": {g: 1e3 * prep[i] / n for i, g in enumerate(group_names)},
+        "score_ms_per_target": {f: 1e3 * score[f] / (n * n_t) for f in families},
+    }
+    # seconds per image x target for each family, prepare amortised over its group's scores
+    per_window = {}
+    for fam in families:
+        gi = next(i for i, g in enumerate(group_names) if fam in g.split("+"))
+        share = len(group_names[gi].split("+"))
+        per_window[fam] = (
+            score[fam] / (n * n_t) + prep[gi] / (n * n_t * share) + load_s / (n * n_t * len(families))
+        )
+    serial_wps = {f: 1.0 / v for f, v in per_window.items()}
+
+    # parallel: score_dataset on a few instances with 2 workers (includes process start-up)
+    sub_inst = dataset.instances.groupby("category").head(1).head(args.parallel_instances)
+    keep = dataset.index.set_index(["category", "instance"]).index.isin(
+        list(zip(sub_inst["category"], sub_inst["instance"], strict=True))
+    )
+    from scrppl.datasets.core import MultiviewDataset
+
+    sub = MultiviewDataset(dataset.root, dataset.index[keep], dataset.grid, dataset.name)
+    par = {}
+    for workers in (1, 2):
+        t = time.perf_counter()
+        score_dataset(sub, detectors, path=None, progress=False, workers=workers)
+        par[workers] = time.perf_counter() - t
+    n_scores = len(sub) * n_t * len(families)
+    speedup = par[1] / par[2]
+
+    # projection for the full default table
+    serial_full_s = FULL_IMAGES * (
+        per_image["load_ms"] / 1e3
+        + sum(per_image["prepare_ms"].values()) / 1e3
+        + FULL_TARGETS * sum(per_image["score_ms_per_target"].values()) / 1e3
+    )
+    where = {
+        "load": FULL_IMAGES * per_image["load_ms"] / 1e3,
+        **{f"prepare {g}": FULL_IMAGES * v / 1e3 for g, v in per_image["prepare_ms"].items()},
+        **{
+            f"score {f}": FULL_IMAGES * FULL_TARGETS * v / 1e3
+            for f, v in per_image["score_ms_per_target"].items()
+        },
+    }
+    result = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "load_average_at_start": os.getloadavg()[0],
+        },
+        "dataset": {
+            "name": dataset.name,
+            "images": len(dataset),
+            "categories": n_t,
+            "image_shape": list(dataset.load_image(dataset.index.iloc[0]).shape),
+            "generation_s": round(t_data, 1),
+        },
+        "families": families,
+        "training_s_per_target": {k: round(v, 2) for k, v in train_s.items()},
+        "per_image": per_image,
+        "windows_per_second_serial": {k: round(v, 1) for k, v in serial_wps.items()},
+        "score_dataset_subset": {
+            "images": len(sub),
+            "scores": n_scores,
+            "seconds_workers_1": round(par[1], 2),
+            "seconds_workers_2": round(par[2], 2),
+            "windows_per_second_workers_2": round(n_scores / par[2], 1),
+            "speedup_2_workers": round(speedup, 2),
+        },
+        "full_table_projection": {
+            "images": FULL_IMAGES,
+            "targets": FULL_TARGETS,
+            "families": families,
+            "serial_minutes": round(serial_full_s / 60, 1),
+            "two_workers_minutes": round(serial_full_s / speedup / 60, 1),
+            "serial_seconds_by_stage": {k: round(v, 1) for k, v in where.items()},
+            "training_minutes_all_targets": round(FULL_TARGETS * sum(train_s.values()) / 60, 1),
+        },
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+    print(json.dumps(result, indent=2, sort_keys=True))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
