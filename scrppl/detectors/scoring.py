@@ -7,8 +7,9 @@ every trained detector and every image of a :class:`~scrppl.datasets.core.Multiv
   are computed once per image and *feature key* -- a detector's ``feature_key`` attribute if it has one
   (SIFT and bag-of-features with equal settings share SIFT features), otherwise ``(family, id of the first
   detector)`` -- and reused by every target's detector of that group.
-* **Resumable.** Work is done in chunks of one instance (all its views). After each finished chunk the
-  partial table is written atomically to ``<path>.partial.nc`` together with the list of finished chunks;
+* **Resumable.** Work is done in chunks of one instance (all its views). Every ``checkpoint_seconds``
+  (and when the run is interrupted by an exception or Ctrl-C) the partial table is written atomically to
+  ``<path>.partial.nc`` together with the list of finished chunks;
   a later call with the same detectors, targets and dataset resumes from it, scoring only the chunks not
   yet finished. When everything is scored the table is written to ``path`` and the partial file removed.
   A table already at ``path`` that was written by the same detectors (their saved meta is recorded in the
@@ -228,6 +229,7 @@ def score_dataset(
     workers: int = 1,
     on_chunk: Callable[[Chunk, dict[str, float]], None] | None = None,
     overwrite: bool = False,
+    checkpoint_seconds: float = 30.0,
 ) -> xr.Dataset:
     """Score every image of ``dataset`` with every detector: the response table.
 
@@ -250,6 +252,9 @@ def score_dataset(
     overwrite
         Rescore even if ``path`` already holds a table written by the same detectors (otherwise that
         table is loaded and returned).
+    checkpoint_seconds
+        Write the partial table at most this often (0: after every chunk); it is also written when the
+        run is interrupted by an exception or Ctrl-C, so only a hard kill loses up to this much work.
 
     Returns
     -------
@@ -332,15 +337,22 @@ def score_dataset(
     bar = tqdm(
         total=len(chunks), initial=len(done), desc="scoring", unit="instance", disable=not progress
     )
+    saved, last_save = len(done), time.monotonic()
     try:
         for chunk, scores, timing in results():
             score[:, :, cat_index[chunk[0]], chunk[1]] = scores
             done.append(chunk)
-            if partial is not None:
+            if partial is not None and time.monotonic() - last_save >= checkpoint_seconds:
                 _write_partial(table, done, partial, fingerprint)
+                saved, last_save = len(done), time.monotonic()
             if on_chunk is not None:
                 on_chunk(chunk, timing)
             bar.update(1)
+    except BaseException:
+        # interrupted (an error, Ctrl-C): keep what was scored
+        if partial is not None and len(done) > saved:
+            _write_partial(table, done, partial, fingerprint)
+        raise
     finally:
         bar.close()
     table.attrs["families"] = json.dumps(families)
