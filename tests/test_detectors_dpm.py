@@ -394,3 +394,43 @@ def test_errors(trained_dpm, toy_data):
 
 def test_hog_template_is_registered():
     assert HogTemplate.family == "hog" and HogTemplate("x").hyperparameters["n_parts"] == 0
+
+
+# -- the tiny synthetic dataset ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    synthetic = pytest.importorskip("scrppl.datasets.synthetic")
+    if not hasattr(synthetic, "make_synthetic"):
+        pytest.skip("the synthetic dataset generator is not available")
+    root = tmp_path_factory.mktemp("tiny")
+    return synthetic.make_synthetic(
+        root, synthetic.SyntheticConfig.for_profile("tiny"), 0, progress=False
+    )
+
+
+@pytest.mark.slow
+def test_dpm_on_tiny_synthetic_dataset(tiny_dataset):
+    """Trained on the train instances, the DPM ranks the held-out instances of its category first and
+    its best detection lies on the object."""
+    from scrppl.detectors.base import training_images
+
+    ds = tiny_dataset
+    target = "cellphone"
+    pos, neg = training_images(ds, target, split="train")
+    det = DeformablePartModel(target, rounds=2, n_background=10).fit(0, pos, neg)
+    test = ds.index[ds.index["split"] != "train"]
+    scores, labels, hits = [], [], []
+    for _, row in test.iterrows():
+        image, box = ds.load_image(row), ds.bbox(row)
+        feats = det.prepare(image, box)
+        scores.append(det.score_prepared(feats))
+        labels.append(row["category"] == target)
+        if labels[-1]:
+            best = det.detect(image, box, threshold=-np.inf)[0]
+            hits.append(box_iou(np.asarray(best.box, dtype=float), box) > 0.5)
+    scores, labels = np.asarray(scores), np.asarray(labels)
+    auc = np.mean(scores[labels][:, None] > scores[~labels][None, :])
+    assert auc >= 0.9, auc
+    assert np.mean(hits) >= 0.75
