@@ -416,3 +416,48 @@ def test_plots_accept_missing_views(toy, trained):
     assert len(fig.axes) == 5
     with pytest.raises(ValueError, match="one response"):
         plot_response_over_azimuth(imgs, np.asarray(resp[:2]), detections)
+
+
+# -- the tiny synthetic dataset ---------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic
+
+    root = tmp_path_factory.mktemp("tiny")
+    return make_synthetic(root, SyntheticConfig.for_profile("tiny"), 0, workers=1, progress=False)
+
+
+@pytest.mark.slow
+def test_pipeline_on_tiny_synthetic(tiny, tmp_path):
+    dets = train_detectors(tiny, ["sift", "bof"], None, views="canonical", seed=0, progress=False)
+    canon = {a for a, _, _ in canonical_views(tiny.grid)}
+    for det in dets["sift"].values():
+        assert set(det.model_views[:, 1].tolist()) <= canon
+        assert set(det.model_views[:, 1].tolist()) == canon
+    table = score_dataset(tiny, dets, path=tmp_path / "responses.nc", progress=False)
+    validate_response_table(table, allow_missing=False)  # tiny has every view
+    inst = tiny.instances
+    for c, i, s in zip(inst["category"], inst["instance"], inst["split"], strict=True):
+        assert table["split"].sel(category=c, instance=i) == s
+    row = tiny.index.iloc[len(tiny) // 2]
+    img, box = tiny.load_image(row), tiny.bbox(row)
+    got = table["score"].sel(
+        detector="sift",
+        target="mouse",
+        category=row["category"],
+        instance=row["instance"],
+        azimuth=row["azimuth"],
+        elevation=row["elevation"],
+        scale=row["scale"],
+    )
+    assert float(got) == dets["sift"]["mouse"].score(img, box)
+    # a model view matched against itself: the training images score far above other categories
+    for fam in ("sift", "bof"):
+        for target in tiny.categories:
+            train = table["split"] == "train"
+            s = table["score"].sel(detector=fam, target=target, azimuth=sorted(canon))
+            own = float(s.where(train).sel(category=target).mean())
+            other = float(
+                s.where(train).sel(category=[c for c in tiny.categories if c != target]).mean()
+            )
+            assert own > 2 * other + 5
