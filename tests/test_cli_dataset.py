@@ -361,3 +361,40 @@ def test_view_sphere_and_camera_positions(tmp_path):
     assert not np.array_equal(shown, img)  # the mask is tinted
     assert np.array_equal(shown[~mask], img[~mask])
     plt.close(ax.figure)
+
+
+# -- the real synthetic generator, end to end -----------------------------------------------------
+@pytest.mark.slow
+def test_make_info_sheet_on_the_tiny_synthetic_profile(tmp_path, capsys):
+    """`make --profile tiny` renders 3 categories x 2 instances x 8 azimuths; info and sheet read it.
+
+    One worker: on 2 busy cores, starting a second rendering process costs more than it saves here.
+    """
+    root, out_dir = tmp_path / "tiny", tmp_path / "results"
+    make = ["dataset", "make", "--profile", "tiny", "--root", str(root), "--seed", "1"]
+    make += ["--workers", "1", "--no-progress"]
+    code, _, _ = run(make, capsys)
+    assert code == 0
+    code, out, _ = run(["dataset", "info", "--root", str(root), "--json"], capsys)
+    assert code == 0
+    info = json.loads(out)
+    assert (info["n_categories"], info["instances"], info["images"]) == (3, 6, 48)
+    assert (info["azimuths"], info["elevations"], info["scales"]) == (8, 1, 1)
+    assert info["missing_views"] == 0
+    for c in info["categories"]:
+        assert len(info["splits"]["test"][c]) >= 1
+    ds = MultiviewDataset.load(root)
+    first = ds.index.iloc[0]
+    assert (root / first["image"]).exists() and (root / first["mask"]).exists()
+    img = ds.load_image(first)
+    assert img.shape[:2] == (240, 320)
+    x0, y0, x1, y1 = ds.bbox(first)
+    assert 0 <= x0 < x1 <= 320 and 0 <= y0 < y1 <= 240
+    # a second make with the same profile and seed loads what is there, rendering nothing
+    stamp = (root / first["image"]).stat().st_mtime_ns
+    code, _, _ = run(make, capsys)
+    assert code == 0 and (root / first["image"]).stat().st_mtime_ns == stamp
+    code, _, _ = run(["dataset", "sheet", "--root", str(root), "--out", str(out_dir)], capsys)
+    assert code == 0
+    assert cv2.imread(str(out_dir / "figures" / "dataset-sheet.png")) is not None
+    assert cv2.imread(str(out_dir / "figures" / "view-sphere.png")) is not None
