@@ -390,7 +390,9 @@ def render_view(
     )
     frame = r.render(camera)
     background = render_background(vs.background, config.width, config.height)
-    image = composite(frame, background, st.fade)
+    # the farther the camera, the more floor it sees: widen the floor's fade with the distance
+    widen = float(np.sqrt(config.grid.scales[view[2]] / min(config.grid.scales)))
+    image = composite(frame, background, (st.fade[0] * widen, st.fade[1] * widen))
     image = develop(np.random.default_rng(vs.noise_seed), image, vs.development)
     return image, frame.object_mask, vs.development.jpeg_quality
 
