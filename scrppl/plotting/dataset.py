@@ -337,8 +337,8 @@ def view_sphere(
             ax3.plot(ring[:, 0], ring[:, 1], ring[:, 2], color=colors[e], lw=0.5, alpha=0.5)
     r_max = float(np.abs(xyz).max())
     for a in range(n_az):
-        p = xyz[a, 0, -1] * 1.15
-        ax3.text(p[0], p[1], 0.0, f"A{a + 1}", fontsize=8, ha="center")
+        p = xyz[a, -1, -1] * 1.12  # beside the highest, farthest camera: clear of the axis labels
+        ax3.text(p[0], p[1], p[2], f"A{a + 1}", fontsize=8, ha="center", va="bottom")
     ax3.quiver(0, 0, 0, 0.6 * r_max, 0, 0, color="crimson", lw=1.5)
     ax3.text(0.7 * r_max, 0, 0.05 * r_max, "front", color="crimson", fontsize=8)
     ax3.scatter([0], [0], [0], color="k", marker="s", s=30)
