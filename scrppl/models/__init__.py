@@ -1,5 +1,24 @@
-"""Viewpoint detection models: the paper's per-view Gaussian and hierarchical Bayesian models."""
+"""Viewpoint detection models: the paper's per-view Gaussian and hierarchical Bayesian models.
 
+* :mod:`~scrppl.models.gaussian` -- the paper's normal per (class, azimuth) (Meger et al. 2010, III-A);
+* :mod:`~scrppl.models.hierarchical` -- NumPyro models with instance, category, elevation and scale
+  effects; :mod:`~scrppl.models.fit` runs NUTS (:mod:`~scrppl.models.mcmc`) and checks the
+  diagnostics (:mod:`~scrppl.models.diagnostics`);
+* :mod:`~scrppl.models.predictive` -- a posterior as a :class:`ResponseModel`;
+* :mod:`~scrppl.models.evaluate` -- held-out log predictive density and calibration;
+* :mod:`~scrppl.models.simulate` -- response tables from known parameters;
+* :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
+* :func:`load_response_model` -- what the rest of the pipeline calls.
+
+The submodules that import NumPyro are loaded on first use, so ``import scrppl.models`` stays light and
+the caller can still configure host devices before JAX initialises.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from scrppl.models import transforms
 from scrppl.models.response import (
     ResponseModel,
     check_response_model,
@@ -8,4 +27,63 @@ from scrppl.models.response import (
     sample,
 )
 
-__all__ = ["ResponseModel", "check_response_model", "log_prob", "predictive_moments", "sample"]
+__all__ = [
+    "ResponseModel",
+    "check_response_model",
+    "log_prob",
+    "predictive_moments",
+    "sample",
+    "transforms",
+    "ViewData",
+    "make_view_data",
+    "extract_view_data",
+    "fit_gaussian",
+    "fit_hierarchical",
+    "SamplerConfig",
+    "to_response_model",
+    "load_response_model",
+    "model_path",
+    "save_gaussian",
+    "save_posterior",
+    "load_posterior",
+    "evaluate_models",
+    "heldout_scores",
+    "simulate_response_table",
+    "TrueViewpointModel",
+    "random_true_model",
+    "prior_predictive",
+    "diagnose",
+    "DiagnosticsWarning",
+    "instance_log_marginal",
+]
+
+_LAZY = {
+    "ViewData": "data",
+    "make_view_data": "data",
+    "extract_view_data": "data",
+    "fit_gaussian": "gaussian",
+    "fit_hierarchical": "fit",
+    "SamplerConfig": "mcmc",
+    "to_response_model": "predictive",
+    "load_response_model": "io",
+    "model_path": "io",
+    "save_gaussian": "io",
+    "save_posterior": "io",
+    "load_posterior": "io",
+    "evaluate_models": "evaluate",
+    "heldout_scores": "evaluate",
+    "simulate_response_table": "simulate",
+    "TrueViewpointModel": "simulate",
+    "random_true_model": "simulate",
+    "prior_predictive": "hierarchical",
+    "diagnose": "diagnostics",
+    "DiagnosticsWarning": "diagnostics",
+    "instance_log_marginal": "marginal",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        module = importlib.import_module(f"scrppl.models.{_LAZY[name]}")
+        return getattr(module, name)
+    raise AttributeError(f"module 'scrppl.models' has no attribute {name!r}")

@@ -1,0 +1,291 @@
+r"""Hierarchical Bayesian viewpoint detection models (NumPyro).
+
+One model per detector and target category, fitted to the ``fit`` split. The paper (Meger et al. 2010,
+Sec. III-A) fits an independent normal per (class ``o``, relative azimuth ``a``); here the response of
+instance ``i`` (class ``o_i``, and for negatives non-target category ``c_i``) from view ``(a, e, s)`` is
+
+.. math::
+
+    f_{iaes} = \mu_{o_i a e s} + \delta_{c_i} [o_i = 0] + u_i + \sigma_{o_i a} \varepsilon_{iaes},
+    \qquad u_i \sim \mathcal N(0, \tau_{o_i}^2),\ \varepsilon \sim \mathcal N(0, 1)
+
+on the detector's transformed scale (:mod:`scrppl.models.transforms`: identity for DPM scores,
+Anscombe for SIFT / bag-of-features counts -- so one Gaussian model serves every detector family, and
+the instance effect stays Gaussian as the instance-aware Kalman filter downstream requires).
+
+Structure and priors
+--------------------
+The model works on standardised responses ``z = (f - loc) / scale`` (``loc``, ``scale``: mean and sd of
+the fitting responses), so that one set of weakly informative priors suits every detector. Sampled sites
+(standardised scale):
+
+* ``alpha[o] ~ Normal(0, 2)``: class mean level.
+* ``coef[o, p] ~ Normal(0, eta[o] / k_p)``, ``eta[o] ~ HalfNormal(1)``: the azimuth profile
+  ``g[o, a] = sum_p coef[o, p] B[a, p]`` in the real Fourier basis of the ``A``-point circle
+  (``cos(2 pi k a / A)``, ``sin(2 pi k a / A)``, ``k = 1 .. A/2``, harmonic number ``k_p``).
+  *Why a shrunk Fourier basis*: on a circle of ``A`` equally spaced bins every stationary periodic
+  Gaussian process is diagonalised exactly by this basis, so independent coefficients with
+  harmonic-dependent variances *are* a periodic GP -- without a Cholesky factor and with a
+  well-conditioned posterior. The ``1/k`` decay of the standard deviation is the spectrum of a circular
+  random walk (Brownian loop): smooth profiles are preferred, but the ``A - 1`` harmonics plus ``alpha``
+  span every function of ``A`` bins, so no viewpoint profile is ruled out.
+* ``elevation_effect[o, e]``, ``scale_effect[o, s] ~ Normal(0, 1)`` for ``e, s >= 1`` (the first
+  elevation and scale are the reference, which keeps ``alpha`` identified): additive shifts.
+* ``log_sigma[o, a] ~ Normal(log sigma_class[o], sigma_spread[o])`` with
+  ``sigma_class[o] ~ LogNormal(log 0.5, 1)``, ``sigma_spread[o] ~ HalfNormal(0.5)``: a noise scale
+  per (class, azimuth), pooled within the class.
+* ``instance_sd[o] ~ HalfNormal(1)``: ``tau``, the sd of the instance effect ``u``.
+* ``category_effect[k] ~ Normal(0, category_sd)``, ``category_sd ~ HalfNormal(1)``: the non-target
+  categories pooled hierarchically (a shift ``delta`` per negative category).
+
+Deterministic sites on the *response* scale feed the predictive (:mod:`scrppl.models.predictive`):
+``mu (2, A, E, S)``, ``sigma (2, A)``, ``tau (2,)``, ``kappa ()``.
+
+Two likelihoods
+---------------
+``marginal=True`` (default) integrates every ``u_i`` out in closed form
+(:func:`scrppl.models.marginal.instance_log_marginal`): O(views) per instance, no per-instance latent
+variables, no funnel. ``marginal=False`` is the plain latent-instance model with explicit ``u_i`` (kept
+for teaching, for the prior predictive and for the benchmark comparison).
+
+Parameterisation
+----------------
+``centered=True`` (default) samples ``coef``, ``log_sigma``, ``category_effect`` (and ``u``) as
+written; ``centered=False`` applies NumPyro's ``LocScaleReparam(0)`` to them. Every coefficient is
+informed by many responses (all instances of a class), the regime where the centred form mixes better;
+``benchmarks/bench_fit.py`` measures both and records the choice.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import numpyro
+import numpyro.distributions as dist
+from numpyro.handlers import reparam
+from numpyro.infer import Predictive
+from numpyro.infer.reparam import LocScaleReparam
+
+from scrppl.models.data import ViewData
+from scrppl.models.marginal import instance_log_marginal
+
+__all__ = [
+    "fourier_basis",
+    "sum_to_zero_basis",
+    "viewpoint_model",
+    "make_model",
+    "standardisation",
+    "model_args",
+    "prior_predictive",
+    "FREE_PARAMETERS",
+    "REPARAM_SITES",
+]
+
+#: Sampled sites of the marginal model (the parameters diagnostics are computed on).
+FREE_PARAMETERS = (
+    "alpha",
+    "eta",
+    "coef",
+    "elevation_contrast",
+    "scale_contrast",
+    "sigma_class",
+    "sigma_spread",
+    "log_sigma_contrast",
+    "instance_sd",
+    "category_sd",
+    "category_contrast",
+)
+
+#: Sites that ``centered=False`` reparameterises (``u`` only exists in the latent-instance model).
+REPARAM_SITES = ("coef", "log_sigma_contrast", "category_contrast", "u")
+
+#: Sites sampled non-centred by default (see "Parameterisation" in the module docstring).
+DEFAULT_NONCENTERED = ("log_sigma_contrast", "category_contrast", "u")
+
+
+def fourier_basis(n_azimuth: int) -> tuple[np.ndarray, np.ndarray]:
+    """Real Fourier basis on the ``A``-point circle, without the constant.
+
+    Returns
+    -------
+    basis
+        Shape ``(A, A - 1)``: columns ``cos(2 pi k a / A)`` and ``sin(2 pi k a / A)`` for
+        ``k = 1 .. floor(A / 2)`` (the sine at the Nyquist harmonic ``k = A/2`` vanishes and is dropped).
+    harmonic
+        Shape ``(A - 1,)``: the harmonic number ``k`` of each column.
+    """
+    a = np.arange(n_azimuth)
+    cols, ks = [], []
+    for k in range(1, n_azimuth // 2 + 1):
+        cols.append(np.cos(2 * np.pi * k * a / n_azimuth))
+        ks.append(k)
+        if 2 * k != n_azimuth:
+            cols.append(np.sin(2 * np.pi * k * a / n_azimuth))
+            ks.append(k)
+    if not cols:
+        return np.zeros((n_azimuth, 0)), np.zeros(0)
+    return np.stack(cols, axis=1), np.asarray(ks, dtype=float)
+
+
+def sum_to_zero_basis(n: int) -> np.ndarray:
+    """Orthonormal basis of the vectors of length ``n`` that sum to zero, shape ``(n, n - 1)``.
+
+    With ``x = H @ c`` and ``c ~ Normal(0, s^2 I)``, ``x`` has the law of the deviations of ``n`` iid
+    ``Normal(0, s^2)`` effects from their mean, ``Normal(0, s^2 (I - 1 1^T / n))``.
+    """
+    if n < 2:
+        return np.zeros((n, 0))
+    q, _ = np.linalg.qr(np.column_stack([np.ones(n), np.eye(n)[:, : n - 1]]))
+    return q[:, 1:]
+
+
+def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = True):
+    """NumPyro model of one detector's responses for one target (see the module docstring).
+
+    Parameters
+    ----------
+    y
+        Responses on the transformed scale, shape ``(I, A, E, S)`` (zeros where not observed), or
+        ``None`` to generate responses (latent-instance form only).
+    observed
+        Boolean mask ``(I, A, E, S)``.
+    o
+        Class per instance ``(I,)``, 0 absent / 1 present.
+    neg_onehot
+        ``(I, K)`` one-hot non-target category of each negative (zero rows for positives).
+    loc, scale
+        Standardisation constants (scalars) of the responses.
+    marginal
+        Integrate the instance effects out in closed form (``True``) or sample them (``False``).
+    """
+    n_inst, n_az, n_el, n_sc = observed.shape
+    n_neg = neg_onehot.shape[1]
+    basis, harmonic = fourier_basis(n_az)
+    alpha = numpyro.sample("alpha", dist.Normal(0.0, 2.0).expand([2]))
+    mu = jnp.broadcast_to(alpha[:, None, None, None], (2, n_az, n_el, n_sc))
+    if basis.shape[1]:
+        eta = numpyro.sample("eta", dist.HalfNormal(1.0).expand([2]))
+        coef = numpyro.sample("coef", dist.Normal(0.0, eta[:, None] / jnp.asarray(harmonic)))
+        mu = mu + (coef @ jnp.asarray(basis).T)[:, :, None, None]
+    if n_el > 1:
+        elev = numpyro.sample("elevation_contrast", dist.Normal(0.0, 1.0).expand([2, n_el - 1]))
+        mu = mu + (elev @ jnp.asarray(sum_to_zero_basis(n_el)).T)[:, None, :, None]
+    if n_sc > 1:
+        scl = numpyro.sample("scale_contrast", dist.Normal(0.0, 1.0).expand([2, n_sc - 1]))
+        mu = mu + (scl @ jnp.asarray(sum_to_zero_basis(n_sc)).T)[:, None, None, :]
+    sigma_class = numpyro.sample("sigma_class", dist.LogNormal(math.log(0.5), 1.0).expand([2]))
+    log_sigma = jnp.broadcast_to(jnp.log(sigma_class)[:, None], (2, n_az))
+    if n_az > 1:
+        spread = numpyro.sample("sigma_spread", dist.HalfNormal(0.5).expand([2]))
+        dev = numpyro.sample("log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1]))
+        log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
+    sigma = jnp.exp(log_sigma)
+    tau = numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2]))
+    offset = jnp.zeros(n_inst)
+    if n_neg > 1:
+        kappa = numpyro.sample("category_sd", dist.HalfNormal(1.0))
+        cdev = numpyro.sample("category_contrast", dist.Normal(0.0, kappa).expand([n_neg - 1]))
+        offset = neg_onehot @ (jnp.asarray(sum_to_zero_basis(n_neg)) @ cdev)
+    else:
+        kappa = jnp.zeros(())
+    numpyro.deterministic("mu", loc + scale * mu)
+    numpyro.deterministic("sigma", scale * sigma)
+    numpyro.deterministic("tau", scale * tau)
+    numpyro.deterministic("kappa", scale * kappa)
+
+    m = mu[o] + offset[:, None, None, None]
+    sd = sigma[o][:, :, None, None]
+    if marginal:
+        if y is None:
+            raise ValueError("the marginal model cannot generate responses; use marginal=False")
+        z = (y - loc) / scale
+        numpyro.factor("likelihood", instance_log_marginal(z, m, sd, tau[o], observed).sum())
+    else:
+        u = numpyro.sample("u", dist.Normal(0.0, tau[o]))
+        z = None if y is None else (y - loc) / scale
+        with numpyro.handlers.mask(mask=observed):
+            z = numpyro.sample(
+                "z", dist.Normal(m + u[:, None, None, None], jnp.broadcast_to(sd, m.shape)), obs=z
+            )
+        numpyro.deterministic("y", loc + scale * z)
+
+
+@functools.cache
+def make_model(marginal: bool = True, noncentered: tuple[str, ...] | None = None):
+    """The model as a callable ``model(y, observed, o, neg_onehot, loc, scale)``.
+
+    Cached, so that the compiled samplers of :mod:`scrppl.models.mcmc` are reused across fits.
+
+    Parameters
+    ----------
+    marginal
+        Closed-form instance marginal (``True``) or explicit latent instance effects (``False``).
+    noncentered
+        Sites to sample non-centred (NumPyro ``LocScaleReparam(0)``), a subset of
+        :data:`REPARAM_SITES`; default :data:`DEFAULT_NONCENTERED` (chosen by measurement, see the
+        module docstring); ``()`` is the fully centred model.
+    """
+    noncentered = DEFAULT_NONCENTERED if noncentered is None else tuple(noncentered)
+    unknown = set(noncentered) - set(REPARAM_SITES)
+    if unknown:
+        raise ValueError(f"cannot reparameterise {sorted(unknown)}; choose from {REPARAM_SITES}")
+    fn = functools.partial(viewpoint_model, marginal=marginal)
+    if noncentered:
+        fn = reparam(fn, config={name: LocScaleReparam(0) for name in noncentered})
+    return fn
+
+
+def standardisation(data: ViewData) -> tuple[float, float]:
+    """``(loc, scale)``: mean and sd of the observed responses (scale 1 if they are all equal)."""
+    vals = np.asarray(data.y)[np.asarray(data.observed)]
+    sd = float(vals.std())
+    return float(vals.mean()), sd if sd > 0 else 1.0
+
+
+def model_args(data: ViewData, loc: float | None = None, scale: float | None = None) -> tuple:
+    """Positional arguments of the model for ``data`` (as JAX arrays)."""
+    if loc is None or scale is None:
+        loc, scale = standardisation(data)
+    return (
+        jnp.asarray(data.y),
+        jnp.asarray(data.observed),
+        jnp.asarray(data.o),
+        jnp.asarray(data.neg_onehot),
+        jnp.asarray(loc, dtype=jnp.asarray(data.y).dtype),
+        jnp.asarray(scale, dtype=jnp.asarray(data.y).dtype),
+    )
+
+
+def prior_predictive(
+    key: jax.Array, data: ViewData, n_draws: int = 500, loc: float | None = None,
+    scale: float | None = None,
+) -> dict[str, np.ndarray]:
+    """Draws from the prior predictive: parameters and simulated responses for ``data``'s design.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key.
+    data
+        Supplies the design (which instance is which class and category, which views exist); its
+        responses are used only for the standardisation constants unless ``loc``/``scale`` are given.
+    n_draws
+        Number of prior draws.
+    loc, scale
+        Standardisation constants (default: :func:`standardisation` of ``data``).
+
+    Returns
+    -------
+    dict with ``mu (n, 2, A, E, S)``, ``sigma (n, 2, A)``, ``tau (n, 2)``, ``kappa (n,)`` and
+    ``y (n, I, A, E, S)`` (NaN at unobserved views), all on the response scale.
+    """
+    args = list(model_args(data, loc, scale))
+    args[0] = None
+    pred = Predictive(make_model(marginal=False), num_samples=n_draws)(key, *args)
+    out = {k: np.asarray(pred[k]) for k in ("mu", "sigma", "tau", "kappa", "y")}
+    out["y"] = np.where(np.asarray(data.observed)[None], out["y"], np.nan)
+    return out

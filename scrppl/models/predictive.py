@@ -1,0 +1,66 @@
+"""From a posterior to a :class:`~scrppl.models.response.ResponseModel` (the posterior predictive).
+
+Each posterior draw ``n`` gives ``mu[n, o, a, e, s]``, ``sigma[n, o, a]`` (broadcast over elevation and
+scale) and the sd of the instance effect of a *new* instance:
+
+* present (``o = 1``): ``tau[n, 1]``;
+* absent (``o = 0``): a new negative comes from a random non-target category, so its total shift is the
+  new category's effect plus its instance effect. The model writes the ``K`` fitted category effects as
+  deviations from their mean (which is absorbed in the class level), so a new category's deviation from
+  that mean has variance ``kappa^2 (1 + 1/K)``; it is folded into the instance-effect sd:
+  ``tau_pred[n, 0] = sqrt(tau[n, 0]^2 + kappa[n]^2 (1 + 1/K))``.
+
+This is exact for a new instance of a new category; the belief filters then treat the combined shift as
+one Gaussian instance effect shared by all views of the object.
+"""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from scrppl.models.response import ResponseModel
+
+__all__ = ["to_response_model"]
+
+
+def to_response_model(posterior: xr.DataTree, n_draws: int | None = None) -> ResponseModel:
+    """The posterior predictive of a hierarchical fit as a ``ResponseModel``.
+
+    Parameters
+    ----------
+    posterior
+        A fit from :func:`scrppl.models.fit.fit_hierarchical` (or loaded from disk).
+    n_draws
+        Keep this many draws, evenly spaced over the pooled chains (default: all).
+
+    Returns
+    -------
+    ``ResponseModel`` with ``mu, sigma`` of shape ``(N, 2, A, E, S)`` and ``tau`` of shape ``(N, 2)``.
+    """
+    if "posterior" not in posterior.children:
+        raise ValueError("not a fitted posterior: the DataTree has no 'posterior' group")
+    post = posterior["posterior"].to_dataset()
+    for name in ("mu", "sigma", "tau", "kappa"):
+        if name not in post:
+            raise ValueError(f"posterior has no {name!r} variable (not written by fit_hierarchical?)")
+    meta = json.loads(posterior.attrs.get("meta", "{}"))
+    n_neg = int(meta.get("n_neg_categories", 1))
+
+    def flat(name):
+        x = np.asarray(post[name].values, dtype=np.float64)
+        return x.reshape((-1,) + x.shape[2:])
+
+    mu = flat("mu")
+    sigma = np.broadcast_to(flat("sigma")[..., None, None], mu.shape).copy()
+    tau = flat("tau").copy()
+    kappa = flat("kappa")
+    if n_neg > 1:
+        tau[:, 0] = np.sqrt(tau[:, 0] ** 2 + kappa**2 * (1.0 + 1.0 / n_neg))
+    if n_draws is not None and n_draws < mu.shape[0]:
+        idx = np.linspace(0, mu.shape[0] - 1, int(n_draws)).round().astype(int)
+        mu, sigma, tau = mu[idx], sigma[idx], tau[idx]
+    return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
