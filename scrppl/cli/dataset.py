@@ -16,7 +16,7 @@ from pathlib import Path
 
 from scrppl.cli._common import add_common, dataset_root
 
-__all__ = ["register", "load_dataset", "format_summary", "DATASET_PROFILES"]
+__all__ = ["register", "load_dataset", "describe", "format_summary", "DATASET_PROFILES"]
 
 #: Profiles of the synthetic dataset; ``tiny`` is the few-second configuration the tests use.
 DATASET_PROFILES = ("quick", "full", "tiny")
@@ -138,12 +138,32 @@ def load_dataset(root: Path, *, split_seed: int = 0, validate: bool = True, prog
         ) from err
 
 
+def describe(dataset) -> dict:
+    """:meth:`MultiviewDataset.summary` plus ``per_category``: instances, images and missing views of each.
+
+    The per-category counts show at a glance which categories lack views (e.g. a Savarese category
+    photographed from two heights only).
+    """
+    summary = dataset.summary()
+    per_category = {}
+    for c, g in dataset.index.groupby("category", sort=True):
+        n_inst = int(g["instance"].nunique())
+        per_category[str(c)] = {
+            "instances": n_inst,
+            "images": int(len(g)),
+            "missing_views": int(n_inst * dataset.grid.n_views - len(g)),
+        }
+    summary["per_category"] = per_category
+    return summary
+
+
 def format_summary(summary: dict) -> str:
-    """Readable text for :meth:`MultiviewDataset.summary` output."""
+    """Readable text for :func:`describe` (or :meth:`MultiviewDataset.summary`) output."""
     grid = summary["grid"]
     els = ", ".join(f"{e:g}" for e in grid["elevations"])
     scs = ", ".join(f"{s:g}" for s in grid["scales"])
     counts = summary["split_counts"]
+    per_category = summary.get("per_category", {})
     lines = [
         f"{summary['name']} dataset at {summary['root']}",
         f"  {summary['n_categories']} categories, {summary['instances']} instances, "
@@ -152,12 +172,18 @@ def format_summary(summary: dict) -> str:
         f"x {summary['scales']} scales ({scs})",
         "  instances per split: " + ", ".join(f"{s} {n}" for s, n in counts.items()),
         "",
-        f"  {'category':<12} " + " ".join(f"{s:>14}" for s in counts),
+        f"  {'category':<12} {'images':>7} {'missing':>8}   instance ids: "
+        + " ".join(f"{s:<10}" for s in counts),
     ]
     for c in summary["categories"]:
-        cells = [",".join(str(i) for i in summary["splits"][s].get(c, [])) or "-" for s in counts]
-        lines.append(f"  {c:<12} " + " ".join(f"{x:>14}" for x in cells))
-    return "\n".join(lines)
+        n = per_category.get(c, {})
+        ids = [",".join(str(i) for i in summary["splits"][s].get(c, [])) or "-" for s in counts]
+        lines.append(
+            f"  {c:<12} {n.get('images', '?'):>7} {n.get('missing_views', '?'):>8}   "
+            + " " * len("instance ids: ")
+            + " ".join(f"{x:<10}" for x in ids)
+        )
+    return "\n".join(line.rstrip() for line in lines)
 
 
 def _make(args: argparse.Namespace) -> int:
@@ -168,7 +194,7 @@ def _make(args: argparse.Namespace) -> int:
     dataset = make_synthetic(
         root, config, args.seed, workers=args.workers, progress=not args.no_progress
     )
-    print(format_summary(dataset.summary()))
+    print(format_summary(describe(dataset)))
     return 0
 
 
@@ -179,7 +205,7 @@ def _info(args: argparse.Namespace) -> int:
         validate=not args.no_validate,
         progress=not args.no_progress,
     )
-    summary = dataset.summary()
+    summary = describe(dataset)
     if args.json:
         json.dump(summary, sys.stdout, indent=2)
         sys.stdout.write("\n")
