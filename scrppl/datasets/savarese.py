@@ -144,7 +144,7 @@ def _read_mask(path: Path) -> np.ndarray:
     """Read an ASCII mask quickly; the same result as :func:`read_ascii_mask` (which reports errors).
 
     Savarese masks are ``0``/``1`` tokens: for those, the body is decoded from its bytes directly
-    (single-character tokens, so every digit is one value), about 30x faster than parsing numbers.
+    (single-character tokens, so every digit is one value), about 10x faster than parsing numbers.
     Anything else (other values, malformed files) goes through :func:`read_ascii_mask`.
     """
     try:
