@@ -290,11 +290,11 @@ class SiftMatcher(Detector):
         "window_side": 200,
         "n_features": 150,
         "ratio": 0.8,
-        "max_model_views": 48,
-        "n_verify": 3,
+        "max_model_views": 32,
+        "n_verify": 2,
         "min_matches": 8,
         "ransac_threshold": 3.0,
-        "ransac_iterations": 500,
+        "ransac_iterations": 200,
     }
     verify: ClassVar[bool] = True
 
