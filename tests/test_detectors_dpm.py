@@ -120,8 +120,9 @@ def test_bilinear_voting_matches_per_pixel_sum():
     gx[:, 1:-1] = f[:, 2:] - f[:, :-2]
     rows, cols = 21 // 4, 27 // 4
     want = np.zeros((rows, cols, 18))
-    for y in range(rows * 4):
-        for x in range(cols * 4):
+    # border pixels do not vote (FGMR); the last image row and column lie beyond the cells here
+    for y in range(1, rows * 4):
+        for x in range(1, cols * 4):
             ch = np.argmax(gy[y, x] ** 2 + gx[y, x] ** 2)
             dy, dx = gy[y, x, ch], gx[y, x, ch]
             b = int(np.floor(np.mod(np.arctan2(dy, dx), 2 * np.pi) / (2 * np.pi / 18) + 0.5)) % 18
@@ -434,3 +435,44 @@ def test_dpm_on_tiny_synthetic_dataset(tiny_dataset):
     auc = np.mean(scores[labels][:, None] > scores[~labels][None, :])
     assert auc >= 0.9, auc
     assert np.mean(hits) >= 0.75
+
+
+# -- mirrored components -----------------------------------------------------------------------------
+
+
+def test_mirror_features_equal_features_of_the_mirrored_image():
+    from scrppl.detectors.dpm.hog import mirror_features
+
+    rng = np.random.default_rng(0)
+    # a smooth float image: no gradient lies exactly on an orientation-bin boundary
+    img = cv2.GaussianBlur(rng.random((96, 120, 3)) * 255, (7, 7), 2)
+    np.testing.assert_allclose(
+        mirror_features(hog_features(img)), hog_features(img[:, ::-1].copy()), atol=1e-5
+    )
+    f = hog_features(skimage.data.coffee()[:64, :80])
+    np.testing.assert_array_equal(mirror_features(mirror_features(f)), f)
+
+
+def test_mirrored_pyramid_scores_and_boxes():
+    """Scoring the mirrored pyramid with F = scoring the pyramid with mirror(F) at the mirrored position,
+    and both give the same window box."""
+    from scrppl.detectors.dpm.hog import mirror_features, mirror_pyramid
+    from scrppl.detectors.dpm.model import level_scores, root_boxes
+
+    rng = np.random.default_rng(5)
+    pyr = build_pyramid(skimage.data.chelsea()[:150, :190], scales=(1.0,), canonical_size=80)
+    mir = mirror_pyramid(pyr)
+    root = rng.normal(size=(4, 5, 32)).astype(np.float32)
+    none = (np.zeros((0, 1, 1, 32), np.float32), np.zeros((0, 2), int), np.zeros((0, 4)))
+    model = StarModel((Component(root, *none, 0.5),), 2)
+    flipped = StarModel((Component(mirror_features(root), *none, 0.5),), 2)
+    a = level_scores(model, mir.root[0], None)[0].score
+    b = level_scores(flipped, pyr.root[0], None)[0].score
+    np.testing.assert_allclose(a, b[:, ::-1], rtol=1e-5, atol=1e-5)
+    ba = root_boxes(mir, 0, a.shape, (4, 5))
+    bb = root_boxes(pyr, 0, b.shape, (4, 5))
+    np.testing.assert_allclose(ba, bb[:, ::-1])
+    # part maps stay aligned: mirrored root cell x covers mirrored part cells 2x, 2x + 1
+    w = pyr.root[0].shape[1]
+    np.testing.assert_allclose(mir.part[0][:, : 2 * w], mirror_features(pyr.part[0][:, : 2 * w]))
+    assert mirror_pyramid(mir).mirrored is False

@@ -79,3 +79,43 @@ def test_template_same_seed_same_model():
     b = HogTemplate("square", **hp).fit(7, pos, neg)
     for ca, cb in zip(a.model_.components, b.model_.components, strict=True):
         np.testing.assert_array_equal(ca.root, cb.root)
+
+
+def test_feature_keys_share_pyramids_within_a_family():
+    a, b = HogTemplate("square"), HogTemplate("triangle")
+    assert a.feature_key == b.feature_key
+    assert (
+        DeformablePartModel("square").feature_key != a.feature_key
+    )  # the DPM also needs part maps
+    assert HogTemplate("square", canonical_size=64).feature_key != a.feature_key
+
+
+def test_template_with_mirrored_components():
+    """Right-pointing triangles (target) vs squares: a mirrored twin lets one filter serve both
+    orientations, and the response is the same for an image and its mirror image."""
+    rng = np.random.default_rng(9)
+
+    def arrow(rng, right):
+        img = cv2.GaussianBlur(
+            rng.normal(128, 30, (120, 160, 3)).clip(0, 255).astype(np.uint8), (5, 5), 2
+        )
+        s = int(rng.integers(40, 60))
+        x0, y0 = int(rng.integers(4, 160 - s - 4)), int(rng.integers(4, 120 - s - 4))
+        tip, base = (x0 + s, x0) if right else (x0, x0 + s)
+        pts = np.array([[base, y0], [base, y0 + s], [tip, y0 + s // 2]], dtype=np.int32)
+        cv2.fillPoly(img, [pts], tuple(int(v) for v in rng.integers(0, 255, 3)))
+        return TrainingImage(img, (x0, y0, x0 + s + 1, y0 + s + 1), "arrow", 0, 0, 1, 1)
+
+    pos = [arrow(rng, right=True) for _ in range(10)]
+    neg = toy_set(11, 10)[0]
+    neg = [n._replace(category="square") for n in neg]
+    det = HogTemplate("arrow", **{**SMALL, "mirror": True, "rounds": 1}).fit(0, pos, neg)
+    left = [arrow(rng, right=False) for _ in range(6)]
+    sq = toy_set(12, 6)[0]
+    sl = np.array([det.score(t.image, t.box) for t in left])
+    ss = np.array([det.score(t.image, t.box) for t in sq])
+    assert np.mean(sl[:, None] > ss[None, :]) >= 0.9, (sl, ss)
+    t = left[0]
+    flipped = t.image[:, ::-1].copy()
+    box = (160 - t.box[2], t.box[1], 160 - t.box[0], t.box[3])
+    assert abs(det.score(flipped, box) - det.score(t.image, t.box)) < 0.25

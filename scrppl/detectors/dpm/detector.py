@@ -37,7 +37,7 @@ from scrppl.detectors.base import (
     proto_object_window,
 )
 from scrppl.detectors.dpm._blas import single_threaded_blas
-from scrppl.detectors.dpm.hog import N_FEATURES, HogPyramid, build_pyramid
+from scrppl.detectors.dpm.hog import N_FEATURES, HogPyramid, build_pyramid, mirror_pyramid
 from scrppl.detectors.dpm.latent_svm import (
     TrainingHistory,
     TrainingWindow,
@@ -51,10 +51,26 @@ __all__ = ["DeformablePartModel", "HogTemplate", "PreparedWindow", "azimuth_comp
 
 
 class PreparedWindow(NamedTuple):
-    """What :meth:`DeformablePartModel.prepare` returns: the pyramid and the settings it was built with."""
+    """What :meth:`DeformablePartModel.prepare` returns.
+
+    Attributes
+    ----------
+    pyramid
+        The window's HOG pyramid.
+    settings
+        The pyramid settings it was built with (checked when scoring).
+    mirror
+        The mirrored window's pyramid when the detector uses mirrored components, else ``None``.
+    """
 
     pyramid: HogPyramid
     settings: tuple
+    mirror: HogPyramid | None = None
+
+    @property
+    def pyramids(self) -> list[HogPyramid]:
+        """The pyramid and, if present, its mirror."""
+        return [self.pyramid] + ([self.mirror] if self.mirror is not None else [])
 
 
 def azimuth_component(azimuth: int, n_components: int, n_azimuth: int = 8) -> int:
@@ -85,7 +101,9 @@ class DeformablePartModel(Detector):
         hang outside the window), ``max_displacement`` (part cells), ``C``, ``overlap``, ``rounds``,
         ``max_per_window``, ``cache_limit`` (latent SVM), ``max_negatives`` (negative windows used),
         ``n_background`` (random background crops), ``margin`` (proto-object window margin),
-        ``min_component_size`` (fewer positives merge the component into the largest one).
+        ``min_component_size`` (fewer positives merge the component into the largest one), ``mirror``
+        (also score the mirrored window: each component gets a left-right mirrored twin, FGMR's way
+        of modelling an object facing left or right with one set of filters).
     """
 
     family: ClassVar[str] = "dpm"
@@ -109,6 +127,7 @@ class DeformablePartModel(Detector):
         "n_background": 60,
         "margin": 0.15,
         "min_component_size": 3,
+        "mirror": False,
     }
 
     def __init__(self, target: str, **hyperparameters: Any) -> None:
@@ -137,7 +156,13 @@ class DeformablePartModel(Detector):
             int(hp["root_cells"]),
             float(hp["margin"]),
             self._uses_parts(),
+            bool(hp["mirror"]),
         )
+
+    @property
+    def feature_key(self) -> tuple:
+        """Detectors with equal keys share :meth:`prepare` output (the pyramid settings, not the target)."""
+        return ("hog-pyramid", *self._settings())
 
     def prepare(self, image: np.ndarray, box: Sequence[float]) -> PreparedWindow:
         """The HOG pyramid of the proto-object window of ``box`` (shared by every target's model).
@@ -166,9 +191,10 @@ class DeformablePartModel(Detector):
             min_cells=int(hp["root_cells"]),
             parts=self._uses_parts(),
         )
-        return PreparedWindow(pyr, self._settings())
+        mirror = mirror_pyramid(pyr) if bool(hp["mirror"]) else None
+        return PreparedWindow(pyr, self._settings(), mirror)
 
-    def _check_prepared(self, features: Any) -> HogPyramid:
+    def _check_prepared(self, features: Any) -> PreparedWindow:
         if not isinstance(features, PreparedWindow):
             raise ValueError(
                 f"{type(self).__name__} needs features from its prepare(), got {type(features).__name__}"
@@ -178,7 +204,7 @@ class DeformablePartModel(Detector):
                 f"prepared features were built with pyramid settings {features.settings}, but this "
                 f"{type(self).__name__} for {self.target!r} uses {self._settings()}"
             )
-        return features.pyramid
+        return features
 
     # -- scoring ---------------------------------------------------------------------------------
     @property
@@ -189,10 +215,10 @@ class DeformablePartModel(Detector):
     def score_prepared(self, features: PreparedWindow) -> float:
         """Best detection score over components, levels and root positions in the window."""
         self.require_fitted()
-        pyr = self._check_prepared(features)
+        prepared = self._check_prepared(features)
         best = -np.inf
         with single_threaded_blas():
-            rows = pyramid_scores(self.model_, pyr)
+            rows = [r for pyr in prepared.pyramids for r in pyramid_scores(self.model_, pyr)]
         for row in rows:
             for ls in row:
                 if ls is not None and ls.score.size:
@@ -211,24 +237,26 @@ class DeformablePartModel(Detector):
         list of :class:`~scrppl.detectors.base.Detection`, boxes in image coordinates, best first.
         """
         self.require_fitted()
-        pyr = self._check_prepared(self.prepare(image, box))
+        prepared = self._check_prepared(self.prepare(image, box))
         thr = self.threshold_ if threshold is None else float(threshold)
         cand = []
-        with single_threaded_blas():
-            rows = pyramid_scores(self.model_, pyr)
-        for level, row in enumerate(rows):
-            for c, ls in enumerate(row):
-                if ls is None:
-                    continue
-                keep = np.flatnonzero(ls.score.ravel() > thr)
-                if keep.size == 0:
-                    continue
-                boxes = root_boxes(
-                    pyr, level, ls.score.shape, self.model_.components[c].root.shape[:2]
-                )
-                for k in keep:
-                    y, x = np.unravel_index(int(k), ls.score.shape)
-                    cand.append((float(ls.score[y, x]), boxes[y, x], c))
+        for pyr in prepared.pyramids:
+            with single_threaded_blas():
+                rows = pyramid_scores(self.model_, pyr)
+            for level, row in enumerate(rows):
+                for c, ls in enumerate(row):
+                    if ls is None:
+                        continue
+                    keep = np.flatnonzero(ls.score.ravel() > thr)
+                    if keep.size == 0:
+                        continue
+                    boxes = root_boxes(
+                        pyr, level, ls.score.shape, self.model_.components[c].root.shape[:2]
+                    )
+                    for k in keep:
+                        y, x = np.unravel_index(int(k), ls.score.shape)
+                        cand.append((float(ls.score[y, x]), boxes[y, x], c))
+        pyr = prepared.pyramid
         cand.sort(key=lambda t: -t[0])
         ox, oy = pyr.offset
         kept: list[Detection] = []
@@ -292,17 +320,18 @@ class DeformablePartModel(Detector):
                 window, offset = proto_object_window(rgb, img.box, float(hp["margin"]))
                 x0, y0, x1, y1 = img.box
                 box = (x0 - offset[0], y0 - offset[1], x1 - offset[0], y1 - offset[1])
-                pos_windows.append(
-                    TrainingWindow(self._prepare_window(window, offset).pyramid, box, int(c))
-                )
+                prep = self._prepare_window(window, offset)
+                pos_windows.append(TrainingWindow(prep.pyramid, box, int(c), prep.mirror))
                 bar.update()
-            neg_windows = []
+            # negatives: every pyramid (a window and, with mirroring, its mirror) is a negative window
+            neg_prepared = []
             for img in negs:
-                neg_windows.append(TrainingWindow(self.prepare(img.image, img.box).pyramid))
+                neg_prepared.append(self.prepare(img.image, img.box))
                 bar.update()
             for window in backgrounds:
-                neg_windows.append(TrainingWindow(self._prepare_window(window, (0, 0)).pyramid))
+                neg_prepared.append(self._prepare_window(window, (0, 0)))
                 bar.update()
+            neg_windows = [TrainingWindow(p) for prep in neg_prepared for p in prep.pyramids]
             model0 = self._initial_model(positives, comp_of, n_comp)
             n_parts = int(hp["n_parts"])
 
@@ -332,12 +361,11 @@ class DeformablePartModel(Detector):
             bar.close()
         self.model_ = model
         self.history_ = history
+        settings = self._settings()
         pos_scores = [
-            self.score_prepared(PreparedWindow(w.pyramid, self._settings())) for w in pos_windows
+            self.score_prepared(PreparedWindow(w.pyramid, settings, w.mirror)) for w in pos_windows
         ]
-        neg_scores = [
-            self.score_prepared(PreparedWindow(w.pyramid, self._settings())) for w in neg_windows
-        ]
+        neg_scores = [self.score_prepared(prep) for prep in neg_prepared]
         self.threshold_ = _equal_error_threshold(np.asarray(pos_scores), np.asarray(neg_scores))
         return self
 

@@ -30,12 +30,21 @@ __all__ = [
     "HogPyramid",
     "build_pyramid",
     "pad_features",
+    "mirror_features",
+    "mirror_pyramid",
+    "FLIP_PERMUTATION",
 ]
 
 #: Feature dimension of every HOG cell: 18 signed + 9 unsigned orientations, 4 texture, 1 truncation.
 N_FEATURES = 32
 #: Index of the truncation feature (1 in padding, 0 in the image).
 TRUNCATION = 31
+#: Feature index of each feature in the left-right mirror image of a cell: signed orientation bin ``k``
+#: (centred on ``20 k`` degrees) becomes ``(9 - k) mod 18``, unsigned ``k`` becomes ``-k mod 9``, and the
+#: texture features of the left and right normalising blocks swap.
+FLIP_PERMUTATION = np.array(
+    [(9 - k) % 18 for k in range(18)] + [18 + (-k) % 9 for k in range(9)] + [28, 27, 30, 29, 31]
+)
 _EPS = 1e-4
 _CLIP = 0.2
 
@@ -59,18 +68,23 @@ def image_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         img = img[:, :, None]
     if img.ndim != 3 or img.shape[0] < 1 or img.shape[1] < 1:
         raise ValueError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
-    img = img.astype(np.float64 if img.dtype == np.float64 else np.float32, copy=False)
-    g_row = np.zeros_like(img)
-    g_col = np.zeros_like(img)
-    g_row[1:-1] = img[2:] - img[:-2]
-    g_col[:, 1:-1] = img[:, 2:] - img[:, :-2]
-    if img.shape[2] == 1:
-        return g_row[:, :, 0], g_col[:, :, 0]
-    best = np.argmax(g_row * g_row + g_col * g_col, axis=2)[:, :, None]
-    return (
-        np.take_along_axis(g_row, best, axis=2)[:, :, 0],
-        np.take_along_axis(g_col, best, axis=2)[:, :, 0],
-    )
+    dtype = np.float64 if img.dtype == np.float64 else np.float32
+    chans = np.ascontiguousarray(np.moveaxis(img, 2, 0), dtype=dtype)  # (C, H, W)
+    g_row = np.zeros_like(chans)
+    g_col = np.zeros_like(chans)
+    g_row[:, 1:-1] = chans[:, 2:] - chans[:, :-2]
+    g_col[:, :, 1:-1] = chans[:, :, 2:] - chans[:, :, :-2]
+    best_row, best_col = g_row[0], g_col[0]
+    if chans.shape[0] == 1:
+        return best_row, best_col
+    mag2 = g_row * g_row + g_col * g_col
+    best = mag2[0]
+    for k in range(1, chans.shape[0]):  # the first channel of largest magnitude wins ties
+        pick = mag2[k] > best
+        best = np.where(pick, mag2[k], best)
+        best_row = np.where(pick, g_row[k], best_row)
+        best_col = np.where(pick, g_col[k], best_col)
+    return best_row, best_col
 
 
 def _orientation_bins(
@@ -146,6 +160,11 @@ def cell_histograms(
     # 1 - a_j into cell k - 1 (j < cell_size / 2) or k + 1 (otherwise): a separable sum over the offset
     # j along each axis, done with slices (no BLAS call, so it stays fast on a busy machine).
     hh, ww = rows * cell_size, cols * cell_size
+    # like FGMR, border pixels (whose central difference is undefined) do not vote; this also keeps
+    # the features exactly equivariant under left-right mirroring
+    mag = mag.copy()
+    mag[[0, -1], :] = 0.0
+    mag[:, [0, -1]] = 0.0
     if h < hh or w < ww:
         raise ValueError(f"n_cells {n_cells} needs an image of at least {hh}x{ww} pixels")
     onehot = np.zeros((hh * ww, n_bins), dtype=np.float32)
@@ -260,6 +279,9 @@ class HogPyramid(NamedTuple):
         ``(height, width)`` of the window in image pixels.
     cell_size
         Cell side in pixels.
+    mirrored
+        Whether the maps are the left-right mirror image of the window's (:func:`mirror_pyramid`);
+        ``factors``, ``origins`` and ``offset`` always describe the unmirrored window.
     """
 
     root: tuple[np.ndarray, ...]
@@ -269,6 +291,7 @@ class HogPyramid(NamedTuple):
     offset: tuple[int, int]
     window_shape: tuple[int, int]
     cell_size: int
+    mirrored: bool = False
 
 
 def _resize(window: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -363,4 +386,34 @@ def build_pyramid(
         offset=(int(offset[0]), int(offset[1])),
         window_shape=(int(h), int(w)),
         cell_size=int(cell_size),
+    )
+
+
+def mirror_features(feat: np.ndarray) -> np.ndarray:
+    """The features of the left-right mirrored image: columns reversed, orientations reflected.
+
+    For an image whose width is a multiple of the cell size, ``mirror_features(hog_features(img))``
+    equals ``hog_features(img[:, ::-1])`` (up to orientations exactly on a bin boundary).
+    """
+    return np.ascontiguousarray(feat[:, ::-1][:, :, FLIP_PERMUTATION])
+
+
+def mirror_pyramid(pyramid: HogPyramid) -> HogPyramid:
+    """The pyramid of the left-right mirrored window (FGMR's mirrored components, by mirroring features).
+
+    Root maps are mirrored whole. A part map has ``2 * Wr + 2`` columns whose last two are padding; its
+    first ``2 * Wr`` columns are mirrored and the padding kept on the right, so that mirrored root cell
+    ``x`` still covers mirrored part cells ``2x`` and ``2x + 1``.
+    """
+    parts = []
+    for p in pyramid.part:
+        out = np.empty_like(p)
+        width = p.shape[1] - 2
+        out[:, :width] = mirror_features(p[:, :width])
+        out[:, width:] = p[:, width:][:, ::-1][:, :, FLIP_PERMUTATION]
+        parts.append(out)
+    return pyramid._replace(
+        root=tuple(mirror_features(r) for r in pyramid.root),
+        part=tuple(parts),
+        mirrored=not pyramid.mirrored,
     )

@@ -54,11 +54,16 @@ __all__ = [
 
 
 class TrainingWindow(NamedTuple):
-    """A prepared training window: its pyramid, and for a positive the object box in window pixels."""
+    """A prepared training window: its pyramid, and for a positive the object box in window pixels.
+
+    ``mirror`` (optional) is the pyramid of the mirrored window: a positive's latent placement may then
+    use either orientation (FGMR's mirrored components).
+    """
 
     pyramid: HogPyramid
     box: tuple[float, float, float, float] | None = None
     component: int | None = None
+    mirror: HogPyramid | None = None
 
 
 class TrainingHistory(NamedTuple):
@@ -192,27 +197,36 @@ def best_positive_placement(
         The score, the component and the feature vector of the best placement whose root box has
         IoU >= ``overlap`` with the labelled box (if none does, the one with the largest IoU).
     """
-    pyr = window.pyramid
-    best = (-np.inf, -1, -1, 0, 0)
-    fallback = (-np.inf, -1, -1, 0, 0)
-    for level, row in enumerate(pyramid_scores(model, pyr)):
-        for c, ls in enumerate(row):
-            if ls is None:
-                continue
-            comp = model.components[c]
-            iou = box_iou(root_boxes(pyr, level, ls.score.shape, comp.root.shape[:2]), window.box)
-            ok = iou >= overlap
-            if ok.any():
-                masked = np.where(ok, ls.score, -np.inf)
-                k = int(np.argmax(masked))
-                if masked.flat[k] > best[0]:
-                    best = (float(masked.flat[k]), c, level, *np.unravel_index(k, masked.shape))
-            k = int(np.argmax(iou))
-            if iou.flat[k] > fallback[0]:
-                fallback = (float(iou.flat[k]), c, level, *np.unravel_index(k, iou.shape))
+    best = (-np.inf, -1, -1, 0, 0, None)
+    fallback = (-np.inf, -1, -1, 0, 0, None)
+    pyramids = [window.pyramid] + ([window.mirror] if window.mirror is not None else [])
+    for pyr in pyramids:
+        for level, row in enumerate(pyramid_scores(model, pyr)):
+            for c, ls in enumerate(row):
+                if ls is None:
+                    continue
+                comp = model.components[c]
+                iou = box_iou(
+                    root_boxes(pyr, level, ls.score.shape, comp.root.shape[:2]), window.box
+                )
+                ok = iou >= overlap
+                if ok.any():
+                    masked = np.where(ok, ls.score, -np.inf)
+                    k = int(np.argmax(masked))
+                    if masked.flat[k] > best[0]:
+                        best = (
+                            float(masked.flat[k]),
+                            c,
+                            level,
+                            *np.unravel_index(k, masked.shape),
+                            pyr,
+                        )
+                k = int(np.argmax(iou))
+                if iou.flat[k] > fallback[0]:
+                    fallback = (float(iou.flat[k]), c, level, *np.unravel_index(k, iou.shape), pyr)
     if best[1] < 0:
         best = fallback
-    _, c, level, y, x = best
+    _, c, level, y, x, pyr = best
     phi = _features_at(model, pyr, c, level, int(y), int(x))
     return float(phi @ pack(model)[c]), c, phi
 
@@ -408,10 +422,13 @@ def train_latent_svm(
     labs: list[list[float]] = [[] for _ in range(n_comp)]
     for win in positives:
         c = int(win.component or 0)
-        phi = _warped_root_features(model, win, c)
-        if phi is not None:
-            feats[c].append(phi)
-            labs[c].append(1.0)
+        # with mirroring, both orientations of each positive (symmetric initial roots; the latent
+        # orientation is chosen from the first latent round on)
+        for pyr in [win.pyramid] + ([win.mirror] if win.mirror is not None else []):
+            phi = _warped_root_features(model, win._replace(pyramid=pyr), c)
+            if phi is not None:
+                feats[c].append(phi)
+                labs[c].append(1.0)
     for win in negatives:
         pyr = win.pyramid
         for _ in range(init_negatives_per_window):

@@ -226,13 +226,17 @@ def root_boxes(
 
     Returns
     -------
-    ``(Ho, Wo, 4)`` boxes ``(x0, y0, x1, y1)`` in window pixels (not clipped).
+    ``(Ho, Wo, 4)`` boxes ``(x0, y0, x1, y1)`` in window pixels (not clipped); for a mirrored pyramid,
+    the boxes in the unmirrored window.
     """
     fx, fy = pyramid.factors[level]
     cs = pyramid.cell_size
     oy, ox = (int(v) for v in pyramid.origins[level])
     ys = (np.arange(shape[0]) - oy) * cs / fy
-    xs = (np.arange(shape[1]) - ox) * cs / fx
+    x_cells = np.arange(shape[1])
+    if pyramid.mirrored:  # mirrored columns [x, x + w) are the window's [Wr - x - w, Wr - x)
+        x_cells = pyramid.root[level].shape[1] - x_cells - root_shape[1]
+    xs = (x_cells - ox) * cs / fx
     boxes = np.empty((shape[0], shape[1], 4))
     boxes[..., 0] = xs[None, :]
     boxes[..., 1] = ys[:, None]
