@@ -58,6 +58,12 @@ def main(argv=None) -> int:
     p.add_argument("--parallel-instances", type=int, default=4)
     p.add_argument("--max-negatives", type=int, default=None)
     p.add_argument("--out", type=Path, default=RESULTS)
+    p.add_argument(
+        "--quality",
+        type=Path,
+        default=None,
+        help="a quality.json written by `scrppl detect`, recorded alongside the timings",
+    )
     args = p.parse_args(argv)
 
     from scrppl.detectors import detector_class
@@ -192,6 +198,21 @@ def main(argv=None) -> int:
             "training_minutes_all_targets": round(FULL_TARGETS * sum(train_s.values()) / 60, 1),
         },
     }
+    if args.quality is not None:
+        q = json.loads(args.quality.read_text())
+        result["quality"] = {
+            k: q.get(k)
+            for k in (
+                "dataset",
+                "split",
+                "views",
+                "average_precision",
+                "mean_average_precision",
+                "azimuth_dependence",
+                "azimuth_dependence_definition",
+                "seconds",
+            )
+        }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
     print(json.dumps(result, indent=2, sort_keys=True))

@@ -148,10 +148,17 @@ def _worker_init(dataset: MultiviewDataset, detectors: Mapping, shape: tuple[int
         cv2.setNumThreads(1)
     except ImportError:  # pragma: no cover
         pass
-    _WORKER.update(dataset=dataset, groups=_groups(detectors), shape=shape)
+    try:
+        _WORKER.update(dataset=dataset, groups=_groups(detectors), shape=shape)
+    except Exception as err:  # re-raised by the first task, so the parent sees the real error
+        _WORKER["error"] = err
 
 
 def _worker_run(chunk: Chunk) -> tuple[Chunk, np.ndarray, dict[str, float]]:
+    if "error" in _WORKER:
+        raise RuntimeError(
+            f"a scoring worker could not set up the detectors: {_WORKER['error']!r}"
+        ) from _WORKER["error"]
     scores, timing = score_chunk(_WORKER["dataset"], _WORKER["groups"], chunk, _WORKER["shape"])
     return chunk, scores, timing
 
