@@ -12,6 +12,7 @@ planner sees the same trials (instances, poses and start views come from :class:
 
 from __future__ import annotations
 
+import functools
 from functools import partial
 from typing import NamedTuple
 
@@ -26,6 +27,10 @@ from scrppl.planning import MODES, PLANNERS, choose_view
 from scrppl.sim.simulator import Trials, robot_frame
 
 __all__ = ["TrialRecord", "run_trials", "run_trial"]
+
+#: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
+#: that can still be unvisited at its first step (more phases: less work, longer compilation).
+_PHASES = 3
 
 
 class TrialRecord(NamedTuple):
@@ -110,7 +115,7 @@ def run_trial(
     )
     first = (current, f0, jnp.asarray(True), joint_log_belief(belief))
 
-    def step(carry, t):
+    def step(carry, t, max_candidates=None):
         belief, visited, current = carry
         view, found, _ = choose_view(
             jax.random.fold_in(key, t),
@@ -125,26 +130,62 @@ def run_trial(
             n_samples=n_samples,
             order=order,
             motion_cost=motion_cost,
+            max_candidates=max_candidates,
         )
         belief, visited, current, f = observe_update(
             belief, visited, current, view.astype(jnp.int32), found
         )
         return (belief, visited, current), (current, f, found, joint_log_belief(belief))
 
-    _, rest = jax.lax.scan(step, (belief, visited, current), jnp.arange(1, n_steps))
-    out = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
-    return TrialRecord(*out)
+    # After k views at most C - k candidates are left. The steps are split into a few phases, each a
+    # scan that evaluates only as many candidates as can be left at its first step.
+    n_a, n_e, n_s = avail_r.shape
+    n_cand = n_a if mode == "azimuth" else n_a * n_e * n_s
+    carry = (belief, visited, current)
+    parts = [jax.tree.map(lambda x: x[None], first)]
+    for lo, hi in _phases(n_steps, _PHASES):
+        carry, out = jax.lax.scan(
+            partial(step, max_candidates=n_cand - lo), carry, jnp.arange(lo, hi)
+        )
+        parts.append(out)
+    return TrialRecord(*(jnp.concatenate(x) for x in zip(*parts, strict=True)))
 
 
-@partial(
-    jax.jit,
-    static_argnames=("filter", "planner", "objective", "mode", "n_steps", "n_samples", "order"),
-)
-def _run_chunk(keys, model, trials: Trials, motion_cost, **static):
-    fn = partial(run_trial, **static, motion_cost=motion_cost)
-    return jax.vmap(fn, in_axes=(0, None, 0, 0, 0, 0))(
-        keys, model, trials.responses, trials.available, trials.pose, trials.start
+def _phases(n_steps: int, n_phases: int) -> list[tuple[int, int]]:
+    """Split steps ``1 .. n_steps - 1`` into at most ``n_phases`` contiguous ranges ``[lo, hi)``."""
+    edges = np.unique(np.linspace(1, n_steps, n_phases + 1).round().astype(int))
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+@functools.lru_cache(maxsize=64)
+def _chunk_runner(n_devices: int, batch_size: int, static: tuple):
+    """A compiled function that runs a chunk of trials.
+
+    ``lax.map`` over small ``vmap`` batches keeps each batch's intermediates in cache; the chunk is split
+    across ``n_devices`` CPU devices with ``shard_map``.
+    """
+    options = dict(static)
+
+    def local(keys, model, responses, available, pose, start, motion_cost):
+        def one(args):
+            k, r, a, p, st = args
+            return run_trial(k, model, r, a, p, st, motion_cost=motion_cost, **options)
+
+        return jax.lax.map(one, (keys, responses, available, pose, start), batch_size=batch_size)
+
+    if n_devices == 1:
+        return jax.jit(local)
+    mesh = jax.sharding.Mesh(np.asarray(jax.local_devices()[:n_devices]), ("trials",))
+    spec = jax.sharding.PartitionSpec("trials")
+    rep = jax.sharding.PartitionSpec()
+    sharded = jax.shard_map(
+        local,
+        mesh=mesh,
+        in_specs=(spec, rep, spec, spec, spec, spec, rep),
+        out_specs=spec,
+        check_vma=False,
     )
+    return jax.jit(sharded)
 
 
 def run_trials(
@@ -161,6 +202,8 @@ def run_trials(
     order: int = 32,
     motion_cost: float = 0.0,
     chunk_size: int = 1024,
+    batch_size: int = 8,
+    devices: int | None = None,
     progress: bool = False,
 ) -> TrialRecord:
     """Run every trial with one filter and one planner.
@@ -188,7 +231,11 @@ def run_trials(
     motion_cost
         Nats per azimuth bin travelled.
     chunk_size
-        Trials per compiled batch.
+        Trials per call of the compiled runner (the last chunk is padded).
+    batch_size
+        Trials vectorised together inside a chunk (small batches keep intermediates in cache).
+    devices
+        CPU devices to split each chunk over (default: all local devices; results do not depend on it).
     progress
         Show a progress bar over chunks.
 
@@ -211,24 +258,39 @@ def run_trials(
     if not 1 <= n_steps <= max_steps:
         raise ValueError(f"n_steps must lie in 1..{max_steps} for mode {mode!r}, got {n_steps}")
     n = trials.n_trials
-    chunk = max(1, min(int(chunk_size), n))
-    idx = jnp.arange(n)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-    static = dict(
-        filter=filter,
-        planner=planner,
-        objective=objective,
-        mode=mode,
-        n_steps=n_steps,
-        n_samples=int(n_samples),
-        order=int(order),
+    n_dev = len(jax.local_devices()) if devices is None else int(devices)
+    if not 1 <= n_dev <= len(jax.local_devices()):
+        raise ValueError(f"devices must lie in 1..{len(jax.local_devices())}, got {devices}")
+    batch = max(1, int(batch_size))
+    n_dev = max(1, min(n_dev, -(-n // batch)))  # no device without a full batch of work
+    unit = n_dev * batch
+    chunk = max(unit, -(-min(int(chunk_size), n) // unit) * unit)
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n))
+    static = (
+        ("filter", filter),
+        ("planner", planner),
+        ("objective", objective),
+        ("mode", mode),
+        ("n_steps", n_steps),
+        ("n_samples", int(n_samples)),
+        ("order", int(order)),
     )
+    runner = _chunk_runner(n_dev, batch, static)
     outs = []
-    starts = range(0, n, chunk)
-    for lo in tqdm(starts, desc=f"{filter}/{planner}", disable=not progress, leave=False):
+    for lo in tqdm(
+        range(0, n, chunk), desc=f"{filter}/{planner}", disable=not progress, leave=False
+    ):
         sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # pad the last chunk with repeats
         part = Trials(*(x[sel] for x in trials))
-        out = _run_chunk(keys[sel], model, part, jnp.float32(motion_cost), **static)
+        out = runner(
+            keys[sel],
+            model,
+            part.responses,
+            part.available,
+            part.pose,
+            part.start,
+            jnp.float32(motion_cost),
+        )
         keep = min(chunk, n - lo)
         outs.append([np.asarray(x[:keep]) for x in out])
     return TrialRecord(*(jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True)))
