@@ -432,6 +432,8 @@ def _render_task(task: _Task) -> list[tuple[tuple[int, int, int], tuple[int, int
 
 
 def _worker_init() -> None:
+    # llvmpipe starts one rasteriser thread per core; with one worker process per core, one each is
+    # faster (and the pixels do not depend on the thread count)
     os.environ.setdefault("LP_NUM_THREADS", "1")
 
 

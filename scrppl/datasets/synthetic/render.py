@@ -1,4 +1,4 @@
-"""Off-screen rendering of one procedural instance on a textured floor, with shadows and a mask pass.
+"""Off-screen rendering of one procedural instance on a textured floor, with shadows and its mask.
 
 One :class:`SceneRenderer` owns one VTK render window (a ``pyvista.Plotter(off_screen=True)``) and is
 reused for every image a process renders -- creating a window costs seconds, rendering a frame
@@ -20,12 +20,15 @@ The scene
   ``grid.elevations[e]`` and distance ``base * grid.scales[s]`` from the object's centre, where the
   base distance frames the object in every view of scale 1 (:func:`base_distance`).
 
-Each :meth:`SceneRenderer.render` draws the frame once and reads back colour and depth. The object's
-mask comes from the renderer's depth buffer, never from colour thresholds: it is the depth comparison
-against the object-less scene, whose depth is known in closed form (the floor is the plane ``z = 0``),
-and it agrees with a second pass with the floor hidden (:meth:`SceneRenderer.render_object_mask`).
-For the floor pixels it also returns their distance from the object on the ground (from the camera
-rays), so the compositor can fade the floor out into the background photograph.
+Each :meth:`SceneRenderer.render` draws the frame once, in two layers: the base layer renders the
+floor and the object with the shadow map (so the object casts its shadow on the floor), then an overlay
+layer redraws the object without shadows into a cleared depth buffer (shadow maps on coarse, smoothly
+shaded meshes show "terminator" acne; the overlay removes it, at the price of the object's shadows on
+itself). The depth buffer read back afterwards holds the object alone, so the object's mask comes from
+the renderer, never from colour thresholds; it agrees with a separate pass with the floor hidden
+(:meth:`SceneRenderer.render_object_mask`). The floor's pixels and their distance from the object on
+the ground come from the camera rays in closed form, so the compositor can fade the floor out into the
+background photograph.
 
 Anti-aliasing is off (multisampling costs 4x on a software rasteriser); the post-processing blur
 (`scrppl.datasets.synthetic.compose`) softens the edges instead.
@@ -33,7 +36,6 @@ Anti-aliasing is off (multisampling costs 4x on a software rasteriser); the post
 
 from __future__ import annotations
 
-import os
 from typing import NamedTuple
 
 import numpy as np
@@ -301,8 +303,6 @@ class SceneRenderer:
     def __init__(self, width: int = 320, height: int = 240, *, shadow_resolution: int = 1024):
         if int(width) < 16 or int(height) < 16:
             raise ValueError(f"image size must be at least 16x16 pixels, got {width}x{height}")
-        # llvmpipe uses as many threads as cores by default; one process per core renders faster
-        os.environ.setdefault("LP_NUM_THREADS", "1")
         import pyvista as pv
         import vtk
 
