@@ -1,0 +1,211 @@
+"""Planning and trial-runner speed, against a straightforward NumPy implementation.
+
+Measures, after compilation:
+
+* one planning decision for a single trial (8 candidate azimuths, M = 256 samples, 16 states
+  (2 classes x 8 poses), one posterior draw), target <= 100 us;
+* batched trials of 8 steps (sampled planner, naive Bayes) for 160 and 10,000 trials, target >= 5,000
+  trials per second;
+* the paper's experiment, 160 trials x 2 planners (sampled entropy + random), target <= 0.25 s;
+* the same decision in plain NumPy (loop over candidates, vectorised over samples and states), and the
+  ratio; the two implementations are checked to give the same expected entropies on the same draws.
+
+Writes ``benchmarks/results/planning.json``. Run: ``python benchmarks/bench_planning.py``.
+The machine's load average is recorded with the numbers: other processes on a 2-core machine slow
+every figure here.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+# one XLA CPU device per core, so that the trial runner can split trials over both cores
+os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count() or 1}")
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from scrppl import belief as B  # noqa: E402
+from scrppl import planning as P  # noqa: E402
+from scrppl.models.response import ResponseModel  # noqa: E402
+from scrppl.sim import Trials, run_trials  # noqa: E402
+
+A, E, S = 8, 1, 1
+M = 256
+RESULTS = Path(__file__).resolve().parent / "results" / "planning.json"
+
+
+def make_model(seed=0):
+    rng = np.random.default_rng(seed)
+    mu = np.zeros((1, 2, A, E, S))
+    mu[0, 1] = 2.0 * np.abs(np.sin(2 * np.pi * np.arange(A) / A))[:, None, None]
+    mu += rng.normal(0, 0.2, size=mu.shape)
+    sigma = rng.uniform(0.6, 1.0, size=mu.shape)
+    return ResponseModel(
+        jnp.asarray(mu, jnp.float32), jnp.asarray(sigma, jnp.float32), jnp.zeros((1, 2))
+    )
+
+
+def make_trials(seed, n):
+    rng = np.random.default_rng(seed)
+    label = rng.integers(0, 2, n)
+    model = make_model()
+    mu = np.asarray(model.mu)[0]
+    resp = mu[label] + rng.normal(0, 0.8, size=(n, A, E, S))
+    start = np.c_[rng.integers(0, A, n), np.zeros((n, 2), int)]
+    return Trials(
+        jnp.asarray(resp, jnp.float32),
+        jnp.ones((n, A, E, S), bool),
+        jnp.asarray(label, jnp.int32),
+        jnp.asarray(rng.integers(0, A, n), jnp.int32),
+        jnp.asarray(start, jnp.int32),
+        jnp.zeros(n, jnp.int32),
+        jnp.zeros(n, jnp.int32),
+    )
+
+
+def numpy_decision(log_belief, mu, sigma, u, eps, phi_e_s=(0, 0)):
+    """Straightforward NumPy: for each candidate azimuth, sample, update, average the joint entropy."""
+    e, s = phi_e_s
+    n_o, n_a = log_belief.shape
+    w = np.exp(log_belief).ravel()
+    cdf = np.cumsum(w)
+    comp = np.minimum(np.searchsorted(cdf, u * cdf[-1], side="right"), w.size - 1)
+    scores = np.empty(n_a)
+    for phi in range(n_a):
+        rel = (phi - np.arange(n_a)) % n_a
+        m = mu[:, rel, e, s].ravel()  # (O*A,) state-major
+        v = sigma[:, rel, e, s].ravel() ** 2
+        f = m[comp] + np.sqrt(v[comp]) * eps  # (M,)
+        lp = log_belief.ravel() - 0.5 * ((f[:, None] - m) ** 2 / v + np.log(v))
+        lp -= lp.max(1, keepdims=True)
+        p = np.exp(lp)
+        p /= p.sum(1, keepdims=True)
+        h = -(p * np.log(np.where(p > 0, p, 1.0))).sum(1)
+        scores[phi] = h.mean()
+    return scores
+
+
+def timeit(fn, repeat, inner=1):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(inner):
+            out = fn()
+        jax.block_until_ready(out)
+        times.append((time.perf_counter() - t0) / inner)
+    return float(np.median(times)), float(np.min(times))
+
+
+def main() -> int:
+    results = {
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "machine": platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "devices": [str(d) for d in jax.devices()],
+        "load_average_start": os.getloadavg(),
+        "dtype": "float32",
+        "settings": {"candidates": A, "samples_M": M, "states": 2 * A, "draws": 1},
+    }
+    model = make_model()
+    key = jax.random.key(0)
+    belief = B.naive_bayes_update(model, B.naive_bayes_init(model), jnp.float32(1.0), 2, 0, 0)
+    visited = jnp.zeros((A, E, S), bool).at[2, 0, 0].set(True)
+    avail = jnp.ones((A, E, S), bool)
+    current = jnp.array([2, 0, 0])
+
+    # -- correctness: JAX and NumPy give the same expected entropies on the same draws ----------------
+    rng = np.random.default_rng(1)
+    u = rng.uniform(size=M).astype(np.float32)
+    eps = rng.normal(size=M).astype(np.float32)
+    ref = numpy_decision(
+        np.asarray(belief.log_belief, np.float64),
+        np.asarray(model.mu[0], np.float64),
+        np.asarray(model.sigma[0], np.float64),
+        u,
+        eps,
+    )
+    views = jnp.asarray([[phi, 0, 0] for phi in range(A)])
+    mixtures = P.candidate_mixtures(model, belief, views)
+    w = np.exp(np.asarray(mixtures.log_weight[0]).ravel())
+    cdf = np.cumsum(w)
+    comp = np.minimum(np.searchsorted(cdf, u * cdf[-1], side="right"), w.size - 1)
+    got = []
+    for c in range(A):
+        mix = jax.tree.map(lambda x, c=c: x[c], mixtures)
+        f = np.asarray(mix.mean).ravel()[comp] + np.sqrt(np.asarray(mix.var).ravel()[comp]) * eps
+        got.append(float(P.posterior_entropy(mix, f).mean()))
+    results["numpy_vs_jax_max_abs_difference_nats"] = float(np.max(np.abs(np.asarray(got) - ref)))
+
+    # -- one decision ------------------------------------------------------------------------------
+    decide = jax.jit(
+        lambda k, b: P.choose_view(k, model, b, current, visited, avail, n_samples=M)[0]
+    )
+    decide(key, belief).block_until_ready()
+    med, best = timeit(lambda: decide(key, belief), repeat=15, inner=200)
+    results["decision_single_trial_us"] = {"median": med * 1e6, "min": best * 1e6, "target": 100.0}
+    np_med, np_best = timeit(
+        lambda: numpy_decision(
+            np.asarray(belief.log_belief, np.float64),
+            np.asarray(model.mu[0], np.float64),
+            np.asarray(model.sigma[0], np.float64),
+            u,
+            eps,
+        ),
+        repeat=7,
+        inner=20,
+    )
+    results["decision_numpy_us"] = {"median": np_med * 1e6, "min": np_best * 1e6}
+    results["decision_speedup_over_numpy"] = np_med / med
+
+    # -- batched trials ----------------------------------------------------------------------------
+    batched = {}
+    for n in (160, 10000):
+        trials = make_trials(2, n)
+        chunk = min(n, 2048)
+
+        def run(trials=trials, chunk=chunk):
+            rec = run_trials(key, model, trials, planner="sampled", n_samples=M, chunk_size=chunk)
+            return rec.log_belief
+
+        t0 = time.perf_counter()
+        jax.block_until_ready(run())
+        first = time.perf_counter() - t0
+        med, best = timeit(run, repeat=3 if n > 1000 else 7)
+        batched[str(n)] = {
+            "trials_per_second": n / med,
+            "best_trials_per_second": n / best,
+            "seconds": med,
+            "first_call_seconds_incl_compile": first,
+            "target_trials_per_second": 5000,
+        }
+    results["batched_sampled_naive_bayes_8_steps"] = batched
+
+    # -- the paper's experiment: 160 trials x (sampled, random) ------------------------------------
+    trials = make_trials(3, 160)
+
+    def paper():
+        a = run_trials(key, model, trials, planner="sampled", n_samples=M, chunk_size=160)
+        b = run_trials(key, model, trials, planner="random", chunk_size=160)
+        return a.log_belief, b.log_belief
+
+    jax.block_until_ready(paper())
+    med, best = timeit(paper, repeat=7)
+    results["paper_experiment_160x2_seconds"] = {"median": med, "min": best, "target": 0.25}
+    results["load_average_end"] = os.getloadavg()
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
