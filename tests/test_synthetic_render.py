@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from scrppl.datasets.core import assign_splits, bbox_from_mask
-from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic, render_view
+from scrppl.datasets.synthetic import SyntheticConfig, load_or_make, make_synthetic, render_view
 from scrppl.datasets.synthetic.backgrounds import (
     PHOTO_POOLS,
     POOLS,
@@ -141,8 +141,9 @@ def test_resume_regenerates_only_the_deleted_view_identically(tiny, tmp_path):
     pd.testing.assert_frame_equal(again.index, ds.index)
     # a complete folder is just loaded: nothing is rewritten
     stamp = target.stat().st_mtime_ns
-    make_synthetic(root, config, SEED, workers=1, progress=False)
+    loaded = load_or_make(root, config, SEED, workers=1, progress=False)
     assert target.stat().st_mtime_ns == stamp
+    pd.testing.assert_frame_equal(loaded.index, ds.index)
 
 
 @pytest.mark.slow  # spawning two render processes costs ~10 s (more on a busy machine)
