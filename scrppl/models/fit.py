@@ -18,8 +18,8 @@ import xarray as xr
 from scrppl.models.data import CLASS_NAMES, ViewData
 from scrppl.models.diagnostics import diagnose, warn_if_failed
 from scrppl.models.hierarchical import (
-    DEFAULT_NONCENTERED,
     FREE_PARAMETERS,
+    choose_noncentered,
     make_model,
     model_args,
     standardisation,
@@ -72,7 +72,7 @@ def fit_hierarchical(
     marginal
         Integrate instance effects out in closed form (default) or sample them (latent-instance model).
     noncentered
-        Sites sampled non-centred (default :data:`~scrppl.models.hierarchical.DEFAULT_NONCENTERED`).
+        Sites sampled non-centred (default: :func:`~scrppl.models.hierarchical.choose_noncentered`).
     progress
         Show a progress bar.
     warn
@@ -90,7 +90,7 @@ def fit_hierarchical(
     for field in ("detector", "target", "transform"):
         if field not in meta:
             raise ValueError(f"meta is missing {field!r}")
-    noncentered = DEFAULT_NONCENTERED if noncentered is None else tuple(noncentered)
+    noncentered = choose_noncentered(data) if noncentered is None else tuple(noncentered)
     loc, scale = standardisation(data)
     model = make_model(marginal, noncentered)
     label = f"{meta['detector']}/{meta['target']}"

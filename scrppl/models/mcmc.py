@@ -60,6 +60,9 @@ class SamplerConfig(NamedTuple):
     dense_mass: bool = False
 
 
+#: Chains start uniformly in ``[-INIT_RADIUS, INIT_RADIUS]`` on the unconstrained scale.
+INIT_RADIUS = 0.5
+
 #: Default settings: 4 chains x (500 warm-up + 500 kept) draws.
 DEFAULT_SAMPLER = SamplerConfig()
 
@@ -94,7 +97,9 @@ def _compiled(model, shapes, n_devices: int, per_device: int, num_warmup: int, t
 
     def init_one(key, args):
         k_init, k_run = jax.random.split(key)
-        z0 = jax.random.uniform(k_init, (size,), minval=-2.0, maxval=2.0)
+        # start near the prior centre of the standardised model (unconstrained 0: unit scales, zero
+        # effects), jittered so that chains start apart (R-hat needs dispersed starts)
+        z0 = jax.random.uniform(k_init, (size,), minval=-INIT_RADIUS, maxval=INIT_RADIUS)
         return init_kernel(z0, num_warmup, target_accept_prob=target_accept,
                            max_tree_depth=max_tree_depth, dense_mass=dense_mass, model_args=args,
                            rng_key=k_run)

@@ -1,0 +1,175 @@
+"""Posterior predictive ResponseModel, saving/loading, held-out evaluation and diagnostics."""
+
+import json
+import warnings
+
+import arviz as az
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from scrppl.models.data import make_view_data
+from scrppl.models.diagnostics import DiagnosticsWarning, diagnose, warn_if_failed
+from scrppl.models.evaluate import evaluate_models, heldout_scores
+from scrppl.models.io import load_response_model, model_path, save_gaussian, save_posterior
+from scrppl.models.predictive import to_response_model
+from scrppl.models.response import ResponseModel, log_prob, predictive_moments, sample
+
+A, E, S = 8, 2, 1
+
+
+def _posterior(rng, chains=2, draws=50, n_neg=3):
+    """A hand-made fit: posterior draws of the response-scale sites, as fit_hierarchical writes them."""
+    post = {
+        "mu": rng.normal(size=(chains, draws, 2, A, E, S)),
+        "sigma": rng.uniform(0.2, 1.0, size=(chains, draws, 2, A)),
+        "tau": rng.uniform(0.1, 0.8, size=(chains, draws, 2)),
+        "kappa": rng.uniform(0.1, 0.5, size=(chains, draws)),
+    }
+    ss = {"diverging": np.zeros((chains, draws), bool), "energy": rng.normal(size=(chains, draws))}
+    tree = az.from_dict({"posterior": post, "sample_stats": ss},
+                        dims={"mu": ["class", "azimuth", "elevation", "scale"],
+                              "sigma": ["class", "azimuth"], "tau": ["class"]})
+    meta = {"detector": "dpm", "target": "car", "transform": "identity", "n_neg_categories": n_neg,
+            "grid": {"n_azimuth": A, "elevations": [0.0, 1.0], "scales": [1.0]}}
+    tree.attrs.update(kind="hierarchical", detector="dpm", target="car", transform="identity",
+                      meta=json.dumps(meta), diagnostics=json.dumps({"ok": True}))
+    return tree, post
+
+
+def test_to_response_model_folds_the_category_variance(rng):
+    tree, post = _posterior(rng)
+    model = to_response_model(tree)
+    assert model.mu.shape == (100, 2, A, E, S) and model.tau.shape == (100, 2)
+    np.testing.assert_allclose(model.mu, post["mu"].reshape(100, 2, A, E, S), rtol=1e-6)
+    np.testing.assert_allclose(model.sigma[:, :, :, 1, 0], post["sigma"].reshape(100, 2, A), rtol=1e-6)
+    tau, kappa = post["tau"].reshape(100, 2), post["kappa"].reshape(100)
+    np.testing.assert_allclose(model.tau[:, 1], tau[:, 1], rtol=1e-6)
+    np.testing.assert_allclose(model.tau[:, 0], np.sqrt(tau[:, 0] ** 2 + kappa**2 * (1 + 1 / 3)),
+                               rtol=1e-6)
+    thin = to_response_model(tree, n_draws=10)
+    assert thin.mu.shape[0] == 10
+    np.testing.assert_allclose(thin.mu[0], model.mu[0]) and np.testing.assert_allclose(
+        thin.mu[-1], model.mu[-1])
+
+
+def test_log_prob_equals_quadrature_over_the_instance_effect(rng):
+    tree, _ = _posterior(rng, chains=1, draws=3)
+    model = to_response_model(tree)
+    f, o, a, e = 0.37, 1, 5, 1
+    mu, sd, tau = (np.asarray(x, dtype=float) for x in (model.mu[:, o, a, e, 0],
+                                                         model.sigma[:, o, a, e, 0], model.tau[:, o]))
+
+    def density(n):
+        return integrate.quad(lambda u: stats.norm.pdf(f, mu[n] + u, sd[n]) * stats.norm.pdf(u, 0, tau[n]),
+                              -10, 10, epsrel=1e-11)[0]
+
+    brute = np.log(np.mean([density(n) for n in range(3)]))
+    np.testing.assert_allclose(float(log_prob(model, f, o, a, e, 0)), brute, rtol=1e-5)
+
+
+def test_sample_reproduces_predictive_moments(key, rng):
+    tree, _ = _posterior(rng)
+    model = to_response_model(tree)
+    o, a = jnp.array([0, 1]), jnp.array([2, 6])
+    draws = np.asarray(sample(key, model, o, a, 1, 0, shape=(200_000,)))
+    mean, var = predictive_moments(model, o, a, 1, 0)
+    se = np.sqrt(np.asarray(var) / 200_000)
+    np.testing.assert_array_less(np.abs(draws.mean(0) - np.asarray(mean)), 5 * se)
+    np.testing.assert_allclose(draws.var(0), np.asarray(var), rtol=0.02)
+
+
+def test_saved_and_reloaded_models_give_identical_log_prob(tmp_path, rng):
+    tree, _ = _posterior(rng)
+    save_posterior(model_path(tmp_path, "hierarchical", "dpm", "car"), tree)
+    loaded, info = load_response_model(tmp_path, "hierarchical", "dpm", "car")
+    assert info["transform"] == "identity" and info["kind"] == "hierarchical"
+    assert info["detector"] == "dpm" and info["target"] == "car" and info["grid"]["n_azimuth"] == A
+    f = jnp.linspace(-2, 2, 7)
+    before = log_prob(to_response_model(tree), f, 1, 3, 1, 0)
+    np.testing.assert_array_equal(np.asarray(log_prob(loaded, f, 1, 3, 1, 0)), np.asarray(before))
+
+    g = ResponseModel(jnp.asarray(rng.normal(size=(1, 2, A, E, S))),
+                      jnp.asarray(rng.uniform(0.5, 1, size=(1, 2, A, E, S))), jnp.zeros((1, 2)))
+    save_gaussian(model_path(tmp_path, "gaussian", "sift", "car"), g, np.ones((2, A, E, S), int),
+                  {"detector": "sift", "target": "car", "transform": "anscombe"})
+    g2, ginfo = load_response_model(tmp_path, "gaussian", "sift", "car")
+    assert ginfo["transform"] == "anscombe"
+    np.testing.assert_array_equal(np.asarray(log_prob(g2, f, 0, 2, 0, 0)),
+                                  np.asarray(log_prob(g, f, 0, 2, 0, 0)))
+
+
+def test_loading_errors(tmp_path, rng):
+    with pytest.raises(FileNotFoundError, match="hierarchical-dpm-bike.nc"):
+        load_response_model(tmp_path, "hierarchical", "dpm", "bike")
+    with pytest.raises(ValueError, match="unknown model kind"):
+        load_response_model(tmp_path, "bayes", "dpm", "bike")
+    tree, _ = _posterior(rng)
+    del tree["posterior"]["mu"]
+    with pytest.raises(ValueError, match="'mu'"):
+        to_response_model(tree)
+
+
+def test_evaluation_against_closed_forms(key, rng):
+    # one-draw model with an instance effect: the joint density is a dense multivariate normal
+    mu = rng.normal(size=(1, 2, A, E, S))
+    sigma = rng.uniform(0.5, 1.0, size=(1, 2, A, E, S))
+    model = ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray([[0.4, 0.9]]))
+    y = rng.normal(size=(3, A, E, S))
+    obs = rng.random(y.shape) > 0.2
+    data = make_view_data(np.where(obs, y, np.nan), [1, 0, 1], observed=obs)
+    sc = heldout_scores(model, data)
+    for i, o in enumerate([1, 0, 1]):
+        m = obs[i]
+        cov = np.diag(sigma[0, o][m] ** 2) + model.tau[0, o] ** 2
+        dense = stats.multivariate_normal(mu[0, o][m], cov).logpdf(y[i][m])
+        np.testing.assert_allclose(sc["lpd_joint"][i] * m.sum(), dense, rtol=1e-4)
+        single = stats.norm.logpdf(y[i][m], mu[0, o][m], np.sqrt(sigma[0, o][m] ** 2 + model.tau[0, o] ** 2))
+        np.testing.assert_allclose(sc["lpd_single"][i], single.mean(), rtol=1e-4)
+    # without an instance effect the joint density is the product of the single ones
+    paper = ResponseModel(model.mu, model.sigma, jnp.zeros((1, 2)))
+    sc0 = heldout_scores(paper, data)
+    np.testing.assert_allclose(sc0["lpd_joint"], sc0["lpd_single"], rtol=1e-5)
+    # calibration: data drawn from the model itself fall in the 50%/90% intervals at those rates
+    n = 400
+    o = np.r_[np.ones(n // 2, int), np.zeros(n // 2, int)]
+    k1, k2 = jax.random.split(key)
+    u = np.asarray(jax.random.normal(k1, (n,))) * np.asarray(model.tau[0])[o]
+    eps = np.asarray(jax.random.normal(k2, (n, A, E, S)))
+    ysim = mu[0, o] + u[:, None, None, None] + sigma[0, o] * eps
+    table = evaluate_models({"hier": model, "paper": paper}, make_view_data(ysim, o),
+                            {"detector": "dpm"})
+    row = table[(table.kind == "hier") & (table["class"] == "all")].iloc[0]
+    assert abs(row.cover50 - 0.5) < 4 * row.cover50_se + 0.01
+    assert abs(row.cover90 - 0.9) < 4 * row.cover90_se + 0.01
+    assert set(table["class"]) == {"all", "absent", "present"} and (table.detector == "dpm").all()
+    # the true model predicts new instances jointly better than the independent-views model
+    prow = table[(table.kind == "paper") & (table["class"] == "all")].iloc[0]
+    assert row.lpd_joint > prow.lpd_joint
+
+
+def test_diagnostics(rng):
+    good = az.from_dict({"posterior": {"x": rng.normal(size=(4, 1000)), "y": rng.normal(size=(4, 1000, 2))},
+                         "sample_stats": {"diverging": np.zeros((4, 1000), bool),
+                                          "energy": rng.normal(size=(4, 1000))}})
+    rep = diagnose(good)
+    assert rep["ok"] and rep["n_draws"] == 4000 and rep["divergences"] == 0
+    assert rep["rhat_max"]["x"] < 1.01 and rep["ess_bulk_min"]["y"] > 400
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_if_failed(rep, "fine")  # no warning
+    shifted = rng.normal(size=(4, 1000)) + np.arange(4)[:, None]
+    energy = np.cumsum(rng.normal(size=(4, 1000)), axis=1)  # random walk: E-BFMI ~ 0
+    div = np.zeros((4, 1000), bool)
+    div[0, 5] = True
+    bad = az.from_dict({"posterior": {"x": rng.normal(size=(4, 1000)), "alpha": shifted},
+                        "sample_stats": {"diverging": div, "energy": energy}})
+    rep = diagnose(bad)
+    assert not rep["ok"] and rep["divergences"] == 1
+    text = "; ".join(rep["failures"])
+    assert "alpha" in text and "R-hat" in text and "E-BFMI" in text and "divergent" in text
+    assert "x (" not in text.split("bulk ESS")[0]
+    with pytest.warns(DiagnosticsWarning, match="alpha"):
+        warn_if_failed(rep, "dpm/car")
