@@ -1,11 +1,13 @@
 """The synthetic multiview dataset: procedural instances of the Savarese categories, rendered off-screen.
 
 * `scrppl.datasets.synthetic.shapes` -- the procedural instances (``build_instance``, ``CATEGORIES``);
-* `scrppl.datasets.synthetic.render` -- the off-screen renderer (floor, shadows, camera, mask);
+* `scrppl.datasets.synthetic.camera` -- canonical placement, framing distance and the view cameras;
+* `scrppl.datasets.synthetic.render` -- the off-screen renderer (floor, shadows, light, mask);
 * `scrppl.datasets.synthetic.floors`, `~.backgrounds`, `~.compose` -- floor textures, background
   pools split between training and held-out instances, compositing and camera development;
-* `scrppl.datasets.synthetic.generate` -- :class:`SyntheticConfig`, :func:`make_synthetic` and
-  :func:`load_or_make`, re-exported here.
+* `scrppl.datasets.synthetic.config`, `~.styles`, `~.generate` -- :class:`SyntheticConfig`, the
+  seeded random choices of every image, and :func:`make_synthetic` / :func:`load_or_make`
+  (re-exported here).
 
 The generator's names are imported lazily, so importing a submodule (e.g. the shapes) stays cheap.
 """

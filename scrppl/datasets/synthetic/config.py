@@ -1,0 +1,159 @@
+"""What the synthetic dataset contains: :class:`SyntheticConfig` and its named profiles."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from scrppl.datasets.core import DEFAULT_SPLIT_PROPORTIONS
+from scrppl.views import ViewGrid
+
+__all__ = ["SyntheticConfig", "PROFILES"]
+
+#: Profiles of :meth:`SyntheticConfig.for_profile`.
+PROFILES = ("full", "quick", "tiny")
+
+
+def _all_categories() -> tuple[str, ...]:
+    from scrppl.datasets.synthetic.shapes import CATEGORIES
+
+    return tuple(CATEGORIES)
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """What to render.
+
+    Parameters
+    ----------
+    categories
+        Category names (a subset of `scrppl.datasets.synthetic.shapes.CATEGORIES`), no repeats.
+    n_instances
+        Instances per category.
+    grid
+        The view grid (azimuths, elevations in degrees, scales as distance multipliers).
+    width, height
+        Image size in pixels.
+    split_proportions
+        Shares of ``(train, fit, test)`` instances per category (`scrppl.datasets.core.assign_splits`).
+    jitter
+        Strength of the nuisance variation: camera pose within its view bin, lighting, floor, camera
+        development and noise (1: the default dataset; 0: exact grid views, a neutral camera).
+    fill
+        Share of the half-frame the object spans in its tightest view at scale 1.
+    """
+
+    categories: tuple[str, ...] = field(default_factory=_all_categories)
+    n_instances: int = 10
+    grid: ViewGrid = field(default_factory=ViewGrid)
+    width: int = 320
+    height: int = 240
+    split_proportions: tuple[float, float, float] = DEFAULT_SPLIT_PROPORTIONS
+    jitter: float = 1.0
+    fill: float = 0.9
+
+    def __post_init__(self) -> None:
+        cats = self.categories
+        if isinstance(cats, str) or not isinstance(cats, Sequence):
+            raise ValueError(f"categories must be a sequence of names, got {cats!r}")
+        object.__setattr__(self, "categories", tuple(str(c) for c in cats))
+        known = _all_categories()
+        if not self.categories:
+            raise ValueError("a synthetic dataset needs at least one category")
+        unknown = [c for c in self.categories if c not in known]
+        if unknown:
+            raise ValueError(
+                f"unknown categories {unknown}; expected names from {', '.join(known)}"
+            )
+        if len(set(self.categories)) != len(self.categories):
+            raise ValueError(f"categories repeat: {list(self.categories)}")
+        if int(self.n_instances) != self.n_instances or self.n_instances < 1:
+            raise ValueError(f"n_instances must be a positive integer, got {self.n_instances!r}")
+        object.__setattr__(self, "n_instances", int(self.n_instances))
+        if not isinstance(self.grid, ViewGrid):
+            raise ValueError(
+                f"grid must be a scrppl.views.ViewGrid, got {type(self.grid).__name__}"
+            )
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if int(v) != v or not 32 <= v <= 4096:
+                raise ValueError(
+                    f"{name} must be an integer number of pixels in 32..4096, got {v!r}"
+                )
+            object.__setattr__(self, name, int(v))
+        if not all(0.0 < el < 90.0 for el in self.grid.elevations):
+            raise ValueError(
+                f"elevations must lie strictly between 0 and 90 degrees, got {self.grid.elevations}"
+            )
+        if not all(s > 0 for s in self.grid.scales):
+            raise ValueError(
+                f"scales must be positive distance multipliers, got {self.grid.scales}"
+            )
+        p = tuple(float(x) for x in self.split_proportions)
+        if len(p) != 3 or min(p) < 0 or not np.isclose(sum(p), 1.0):
+            raise ValueError(
+                f"split_proportions must be three non-negative shares summing to 1, got {self.split_proportions}"
+            )
+        object.__setattr__(self, "split_proportions", p)
+        if not 0.0 <= float(self.jitter) <= 2.0:
+            raise ValueError(f"jitter must lie in [0, 2], got {self.jitter!r}")
+        if not 0.1 <= float(self.fill) <= 1.0:
+            raise ValueError(f"fill must lie in [0.1, 1], got {self.fill!r}")
+        object.__setattr__(self, "jitter", float(self.jitter))
+        object.__setattr__(self, "fill", float(self.fill))
+
+    @property
+    def n_images(self) -> int:
+        """Number of images: categories x instances x views."""
+        return len(self.categories) * self.n_instances * self.grid.n_views
+
+    @classmethod
+    def for_profile(cls, name: str) -> SyntheticConfig:
+        """A named configuration.
+
+        * ``"full"``: all ten categories x 10 instances x the Savarese grid (8 x 3 x 3) = 7,200 images.
+        * ``"quick"``: four categories x 6 instances x 8 azimuths at one height and scale (192 images,
+          well under a minute) -- a pipeline that runs end to end in a few minutes.
+        * ``"tiny"``: three categories x 2 instances x 8 azimuths at one height and scale (48 images,
+          seconds) -- for tests.
+        """
+        if name == "full":
+            return cls()
+        if name == "quick":
+            return cls(
+                categories=("bicycle", "car", "monitor", "shoe"),
+                n_instances=6,
+                grid=ViewGrid(8, (25.0,), (1.4,)),
+            )
+        if name == "tiny":
+            return cls(
+                categories=("bicycle", "cellphone", "mouse"),
+                n_instances=2,
+                grid=ViewGrid(8, (25.0,), (1.0,)),
+            )
+        raise ValueError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable description (inverse: :meth:`from_dict`)."""
+        return {
+            "categories": list(self.categories),
+            "n_instances": self.n_instances,
+            "grid": self.grid.to_dict(),
+            "width": self.width,
+            "height": self.height,
+            "split_proportions": list(self.split_proportions),
+            "jitter": self.jitter,
+            "fill": self.fill,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SyntheticConfig:
+        """Inverse of :meth:`to_dict`."""
+        d = dict(d)
+        d["grid"] = ViewGrid.from_dict(d["grid"])
+        d["categories"] = tuple(d["categories"])
+        d["split_proportions"] = tuple(d["split_proportions"])
+        return cls(**d)
