@@ -29,9 +29,23 @@ __all__ = ["register"]
 DEFAULT_KINDS = ("paper", "hierarchical")
 #: Settings per profile: trials, large trials, samples M per decision, max posterior draws used.
 PROFILE_SETTINGS = {
-    "quick": {"trials": 160, "large_trials": 1000, "n_samples": 64, "max_draws": 8},
-    "full": {"trials": 160, "large_trials": 10000, "n_samples": 256, "max_draws": 32},
+    "quick": {
+        "trials": 160,
+        "large_trials": 1000,
+        "n_samples": 64,
+        "max_draws": 8,
+        "large_max_draws": 4,
+    },
+    "full": {
+        "trials": 160,
+        "large_trials": 10000,
+        "n_samples": 256,
+        "max_draws": 32,
+        "large_max_draws": 8,
+    },
 }
+#: Targets simulated when ``--targets`` is not given (the first ones of the table).
+DEFAULT_N_TARGETS = 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,7 +72,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--targets",
         default=None,
-        help="comma-separated targets (default: every target of the table)",
+        help=f"comma-separated targets, or 'all' (default: the first {DEFAULT_N_TARGETS} of the table)",
+    )
+    p.add_argument(
+        "--objective",
+        choices=("joint", "class", "pose"),
+        default="joint",
+        help="entropy the planner minimises: joint H(o, theta) (the paper's eq. 5), class, pose",
+    )
+    p.add_argument(
+        "--motion-cost", type=float, default=0.0, help="nats per azimuth bin travelled (default 0)"
     )
     p.add_argument(
         "--kinds",
@@ -70,7 +93,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-draws",
         type=int,
         default=None,
-        help="posterior draws kept (evenly thinned) for filtering and planning",
+        help="posterior draws kept (evenly thinned) for filtering and planning (full: 32, quick: 8)",
+    )
+    p.add_argument(
+        "--large-max-draws",
+        type=int,
+        default=None,
+        help="posterior draws kept in the large experiment (full: 8, quick: 4)",
     )
     p.add_argument(
         "--force", action="store_true", help="accepted for symmetry; outputs are rewritten"
@@ -142,7 +171,6 @@ def _load_methods(args, table, detector, target, key, n_trials, max_draws, log):
 
 def _fig4(key, method, target, out_dir, run_options):
     """Fig. 4: a positive trial with the object at pose 135 degrees (or the nearest bin)."""
-    import jax
     import jax.numpy as jnp
     import matplotlib.pyplot as plt
     import numpy as np
@@ -170,7 +198,6 @@ def _fig4(key, method, target, out_dir, run_options):
     path = out_dir / f"fig4-{target}.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    del jax
     return path
 
 
@@ -248,7 +275,7 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     table = load_response_table(out / "responses.nc")
     settings = dict(PROFILE_SETTINGS[args.profile])
-    for opt in ("trials", "large_trials", "n_samples", "max_draws"):
+    for opt in ("trials", "large_trials", "n_samples", "max_draws", "large_max_draws"):
         if getattr(args, opt) is not None:
             settings[opt] = int(getattr(args, opt))
     if settings["trials"] < 2:
@@ -260,19 +287,36 @@ def _run(args: argparse.Namespace) -> int:
     if detector not in detectors:
         raise ValueError(f"detector {detector!r} is not in the response table ({detectors})")
     all_targets = table["target"].values.tolist()
-    targets = [t.strip() for t in args.targets.split(",")] if args.targets else all_targets
+    if args.targets in (None, ""):
+        targets = all_targets[:DEFAULT_N_TARGETS]
+    elif args.targets == "all":
+        targets = all_targets
+    else:
+        targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     for t in targets:
         if t not in all_targets:
             raise ValueError(f"target {t!r} is not in the response table ({all_targets})")
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     progress = not args.quiet
-    run_options = {"n_samples": settings["n_samples"], "objective": "joint", "mode": "azimuth"}
+    run_options = {
+        "n_samples": settings["n_samples"],
+        "objective": args.objective,
+        "mode": "azimuth",
+        "motion_cost": float(args.motion_cost),
+    }
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     root = jax.random.key(args.seed)
     summary_json: dict = {
         "detector": detector,
-        "settings": settings | {"objective": "joint", "planners": ["sampled", "random"]},
+        "settings": settings
+        | {
+            "objective": args.objective,
+            "motion_cost": float(args.motion_cost),
+            "planners": ["sampled", "random"],
+            "positive_fraction": 0.5,
+            "confidence_threshold": 0.95,
+        },
         "targets": {},
     }
     paper_sets, large_sets, cal_inputs = [], [], []
