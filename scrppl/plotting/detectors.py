@@ -71,7 +71,7 @@ def plot_response_over_azimuth(
     ax = fig.add_subplot(gs[0, :])
     ax.plot(deg, responses, "o-", color="tab:red")
     if threshold is not None:
-        ax.axhline(threshold, color="0.4", ls="--", lw=1, label=f"threshold {threshold:g}")
+        ax.axhline(threshold, color="0.4", ls="--", lw=1, label=f"threshold {threshold:.3g}")
         ax.legend(loc="best", fontsize=8)
     ax.set_xticks(deg)
     ax.set_xlabel("azimuth (degrees)")
