@@ -159,6 +159,10 @@ def test_runner_records_are_consistent(table, model, key, planner):
     )
     np.testing.assert_array_equal(np.asarray(again.views), views[:3])
     np.testing.assert_array_equal(np.asarray(again.log_belief), np.asarray(rec.log_belief)[:3])
+    if planner == "random":
+        # nor on how many CPU devices the trials are split over
+        one = sim.run_trials(key, model, trials, planner=planner, chunk_size=CHUNK, devices=1)
+        np.testing.assert_array_equal(np.asarray(one.views), views)
 
 
 def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key):
@@ -269,7 +273,7 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     def fake_loader(models_dir, kind, detector, target):
         # the models stage is tested elsewhere; here only its contract matters
         calls.append((kind, detector, target))
-        if kind != "paper":
+        if kind != "gaussian":
             raise FileNotFoundError(f"no {kind} model in {models_dir}")
         return model, {"transform": "identity"}
 
@@ -277,14 +281,14 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     argv = ["simulate", "--out", str(tmp_path), "--profile", "quick", "--trials", "12"]
     argv += ["--large-trials", "16", "--n-samples", "64", "--quiet"]
     assert main(argv) == 0
-    assert ("paper", "dpm", "car") in calls
+    assert ("gaussian", "dpm", "car") in calls
     summary = json.loads((tmp_path / "simulate-summary.json").read_text())
-    headline = summary["targets"]["car"]["paper_experiment"]["paper+naive_bayes"]
+    headline = summary["targets"]["car"]["paper_experiment"]["gaussian+naive_bayes"]
     assert set(headline["views_to_confidence"]) == {"sampled", "random"}
     ds = sim.load_trials(tmp_path / "trials.nc")
     assert ds.sizes["trial"] == 12 and ds.sizes["step"] == A
     assert sim.load_trials(tmp_path / "trials-large.nc").sizes["trial"] == 16
     figures = {p.name for p in (tmp_path / "figures").iterdir()}
-    assert {"fig4-car.png", "fig5-car-paper-naive_bayes.png", "calibration.png"} <= figures
+    assert {"fig4-car.png", "fig5-car-gaussian-naive_bayes.png", "calibration.png"} <= figures
     # a missing response table is a clear error, not a traceback
     assert main(["simulate", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1

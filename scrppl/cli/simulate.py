@@ -4,7 +4,7 @@ Reads ``<out>/responses.nc`` and the fitted viewpoint models under ``<out>/model
 target runs the paper's experiment -- ``--trials`` (160) held-out trials, the entropy planner (eq. 5)
 against a random unseen view, on the same trials -- with every method available:
 
-* ``paper+naive_bayes``        the paper's Gaussian with the naive-Bayes filter (the paper);
+* ``gaussian+naive_bayes``     the paper's Gaussian with the naive-Bayes filter (the paper);
 * ``hierarchical+naive_bayes`` the hierarchical model's predictive with naive Bayes;
 * ``hierarchical+instance``    the hierarchical model with the instance-aware filter;
 
@@ -26,7 +26,7 @@ from scrppl.cli._common import add_common
 __all__ = ["register"]
 
 #: Model kinds tried in order; each is loaded with ``scrppl.models.load_response_model``.
-DEFAULT_KINDS = ("paper", "hierarchical")
+DEFAULT_KINDS = ("gaussian", "hierarchical")
 #: Settings per profile: trials, large trials, samples M per decision, max posterior draws used.
 PROFILE_SETTINGS = {
     "quick": {
@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--kinds",
         default=",".join(DEFAULT_KINDS),
-        help="comma-separated model kinds to load (default: paper,hierarchical)",
+        help="comma-separated model kinds to load (default: gaussian,hierarchical)",
     )
     p.add_argument("--n-samples", type=int, default=None, help="samples M per planning decision")
     p.add_argument(
