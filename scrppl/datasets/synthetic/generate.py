@@ -217,9 +217,21 @@ def _render_task(task: _Task) -> list[tuple[tuple[int, int, int], tuple[int, int
 
 
 def _worker_init() -> None:
+    """Set up a spawned rendering process."""
+    import signal
+
     # llvmpipe starts one rasteriser thread per core; with one worker process per core, one each is
     # faster (and the pixels do not depend on the thread count)
     os.environ.setdefault("LP_NUM_THREADS", "1")
+    # Ctrl-C is the parent's business: it stops handing out work and lets running instances finish
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # and if the parent is killed outright, do not linger (Linux; elsewhere the next read fails)
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 # -- the generator ---------------------------------------------------------------------------------
