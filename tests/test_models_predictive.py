@@ -74,11 +74,11 @@ def test_sample_reproduces_predictive_moments(key, rng):
     tree, _ = _posterior(rng)
     model = to_response_model(tree)
     o, a = jnp.array([0, 1]), jnp.array([2, 6])
-    draws = np.asarray(sample(key, model, o, a, 1, 0, shape=(200_000,)))
+    draws = np.asarray(sample(key, model, o, a, 1, 0, shape=(100_000,)))
     mean, var = predictive_moments(model, o, a, 1, 0)
-    se = np.sqrt(np.asarray(var) / 200_000)
+    se = np.sqrt(np.asarray(var) / 100_000)
     np.testing.assert_array_less(np.abs(draws.mean(0) - np.asarray(mean)), 5 * se)
-    np.testing.assert_allclose(draws.var(0), np.asarray(var), rtol=0.02)
+    np.testing.assert_allclose(draws.var(0), np.asarray(var), rtol=0.03)
 
 
 def test_saved_and_reloaded_models_give_identical_log_prob(tmp_path, rng):

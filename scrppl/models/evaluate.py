@@ -33,9 +33,17 @@ from scrppl.models.response import ResponseModel, check_response_model, log_prob
 __all__ = ["heldout_scores", "evaluate_models"]
 
 
-def _draw_chunks(n: int, size: int = 256):
-    for start in range(0, n, size):
-        yield slice(start, min(start + size, n))
+@jax.jit
+def _joint_and_cdf(mu, sigma, tau, y, observed, o):
+    """Per draw: joint log density of every instance; summed over draws: predictive CDF values."""
+
+    def one(cdf_sum, draw):
+        m, sd, t = draw[0][o], draw[1][o], draw[2][o]
+        joint = instance_log_marginal(y, m, sd, t, observed)
+        z = (y - m) / jnp.sqrt(sd**2 + t[:, None, None, None] ** 2)
+        return cdf_sum + norm.cdf(z), joint
+
+    return jax.lax.scan(one, jnp.zeros(y.shape, mu.dtype), (mu, sigma, tau))[::-1]
 
 
 def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray]:
@@ -65,20 +73,12 @@ def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray
     e = jnp.arange(E)[None, None, :, None]
     s = jnp.arange(S)[None, None, None, :]
     oo = o[:, None, None, None]
-    single = log_prob(model, y, oo, a, e, s)  # (I, A, E, S)
+    single = jax.jit(log_prob)(model, y, oo, a, e, s)  # (I, A, E, S)
     lpd_single = np.where(obs, np.asarray(single), 0.0).reshape(len(n_views), -1).sum(1) / n_views
 
     n_draw = model.mu.shape[0]
-    joint_parts, cdf = [], 0.0
-    obs_j = jnp.asarray(obs)
-    for sl in _draw_chunks(n_draw):
-        mu = model.mu[sl][:, o]  # (n, I, A, E, S)
-        sigma = model.sigma[sl][:, o]
-        tau = model.tau[sl][:, o]  # (n, I)
-        joint_parts.append(jax.vmap(instance_log_marginal, in_axes=(None, 0, 0, 0, None))(
-            y, mu, sigma, tau, obs_j))
-        cdf = cdf + norm.cdf((y[None] - mu) / jnp.sqrt(sigma**2 + tau[..., None, None, None] ** 2)).sum(0)
-    joint = logsumexp(jnp.concatenate(joint_parts, axis=0), axis=0) - math.log(n_draw)
+    joint_draws, cdf = _joint_and_cdf(model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o)
+    joint = logsumexp(joint_draws, axis=0) - math.log(n_draw)
     pit = np.asarray(cdf) / n_draw
     out = {"lpd_single": lpd_single, "lpd_joint": np.asarray(joint) / n_views, "n_views": n_views}
     for q in (50, 90):
