@@ -34,7 +34,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "fit",
         help="fit the paper's Gaussians and hierarchical viewpoint models",
-        description=__doc__.split("\n\n")[0],
+        description="Fit the paper's Gaussian and the hierarchical viewpoint model of every detector x "
+        "target in <out>/responses.nc; write models/, diagnostics, held-out scores and figures.",
     )
     add_common(p)
     p.add_argument("--accept-diagnostics", action="store_true",

@@ -29,14 +29,20 @@ the fitting responses), so that one set of weakly informative priors suits every
   well-conditioned posterior. The ``1/k`` decay of the standard deviation is the spectrum of a circular
   random walk (Brownian loop): smooth profiles are preferred, but the ``A - 1`` harmonics plus ``alpha``
   span every function of ``A`` bins, so no viewpoint profile is ruled out.
-* ``elevation_effect[o, e]``, ``scale_effect[o, s] ~ Normal(0, 1)`` for ``e, s >= 1`` (the first
-  elevation and scale are the reference, which keeps ``alpha`` identified): additive shifts.
-* ``log_sigma[o, a] ~ Normal(log sigma_class[o], sigma_spread[o])`` with
-  ``sigma_class[o] ~ LogNormal(log 0.5, 1)``, ``sigma_spread[o] ~ HalfNormal(0.5)``: a noise scale
-  per (class, azimuth), pooled within the class.
+* ``elevation_contrast[o, :] ~ Normal(0, 1)`` (``E - 1`` values) and ``scale_contrast[o, :]``
+  (``S - 1``): additive elevation and scale effects, written in an orthonormal basis of the sum-to-zero
+  vectors (:func:`sum_to_zero_basis`) so that they are a posteriori uncorrelated with ``alpha`` on a
+  balanced grid.
+* ``log sigma[o, a] = log sigma_class[o] + (H c[o])_a`` with ``c = log_sigma_contrast[o] ~
+  Normal(0, sigma_spread[o])`` (``H``: sum-to-zero basis over azimuths), ``sigma_class[o] ~
+  LogNormal(log 0.5, 1)`` (the geometric mean over azimuths), ``sigma_spread[o] ~ HalfNormal(0.5)``: a
+  noise scale per (class, azimuth) with a hierarchical prior, pooled within the class.
 * ``instance_sd[o] ~ HalfNormal(1)``: ``tau``, the sd of the instance effect ``u``.
-* ``category_effect[k] ~ Normal(0, category_sd)``, ``category_sd ~ HalfNormal(1)``: the non-target
-  categories pooled hierarchically (a shift ``delta`` per negative category).
+* ``category_contrast ~ Normal(0, category_sd)`` (``K - 1`` values), ``category_sd ~ HalfNormal(1)``:
+  the ``K`` non-target categories pooled hierarchically. ``delta = H c`` are the deviations of ``K``
+  iid ``Normal(0, kappa)`` category shifts from their mean (exactly their law; the mean is absorbed in
+  ``alpha[0]``), which removes the ridge between ``alpha[0]`` and the shifts. A new category's shift
+  from that mean has variance ``kappa^2 (1 + 1/K)`` (used by :mod:`scrppl.models.predictive`).
 
 Deterministic sites on the *response* scale feed the predictive (:mod:`scrppl.models.predictive`):
 ``mu (2, A, E, S)``, ``sigma (2, A)``, ``tau (2,)``, ``kappa ()``.
