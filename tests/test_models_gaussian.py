@@ -102,6 +102,12 @@ def test_simulated_table_and_extraction(key):
     assert data.o.tolist() == [0, 0, 0, 1, 1, 1, 0, 0, 0]
     assert meta["neg_categories"] == ["a", "c"] and meta["transform"] == "identity"
     assert data.neg_onehot.sum(1).tolist() == [1, 1, 1, 0, 0, 0, 1, 1, 1]
+    partial = table.copy(deep=True)
+    partial["score"].loc[{"category": "c", "instance": 1}] = np.nan  # an instance never seen
+    partial["score"].loc[{"category": "a", "instance": 2, "azimuth": 3}] = np.nan  # a missing view
+    data2, meta2 = extract_view_data(partial, "dpm", "b", split="fit")
+    assert data2.y.shape[0] == 8 and meta2["instance_index"][-2:] == [2, 3]
+    assert data2.observed.sum() == data.observed.sum() - 16 - 2
     with pytest.raises(ValueError, match="grid"):
         extract_view_data(table, "dpm", "a", grid=ViewGrid(8, (10.0,), (1.0,)))
     with pytest.raises(ValueError, match="detector 'sift'"):

@@ -135,7 +135,8 @@ def extract_view_data(
     Returns
     -------
     data
-        The :class:`ViewData` (instances ordered by category, then instance index).
+        The :class:`ViewData` (instances ordered by category, then instance index; instances of the
+        split with no response at all are left out).
     meta
         ``detector``, ``target``, ``transform``, ``split``, ``categories`` (every category of the table),
         ``neg_categories`` (the ``K`` non-target ones, in ``neg_onehot`` column order),
@@ -159,6 +160,8 @@ def extract_view_data(
     rows, cats, idx = [], [], []
     for ci, cat in enumerate(categories):
         for ii in np.flatnonzero(split_lab[ci] == split):
+            if np.isnan(score[ci, ii]).all():  # an instance without a single response carries nothing
+                continue
             rows.append(score[ci, ii])
             cats.append(cat)
             idx.append(int(table["instance"].values[ii]))
