@@ -91,13 +91,13 @@ def test_sampled_converges_to_quadrature_like_one_over_sqrt_m(rng, key, kind):
 @pytest.mark.parametrize("kind", B.FILTERS)
 def test_expected_entropy_never_exceeds_current_entropy(rng, kind):
     model = random_model(rng, tau=0.8)
-    views = jnp.asarray([[phi, e, s] for phi in range(4) for e in range(2) for s in range(2)])
+    views = jnp.asarray([[phi, e, phi % 2] for phi in range(4) for e in range(2)])
     for trial in range(3):
         b = observed_belief(rng, kind, model, k=trial)
         logj = B.joint_log_belief(b)
         for objective in B.OBJECTIVES:
             current = float(B.objective_entropy(logj, objective))
-            h = P.expected_entropies(None, model, b, views, "quadrature", objective, order=24)
+            h = P.expected_entropies(None, model, b, views, "quadrature", objective, order=16)
             assert np.all(np.asarray(h) <= current + 1e-5), (objective, current, h)
 
 
