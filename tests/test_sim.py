@@ -116,6 +116,11 @@ def test_bad_simulator_input(table, key, model):
         sim.run_trials(key, other_grid, trials)
     with pytest.raises(ValueError, match="n_steps"):
         sim.run_trials(key, model, trials, n_steps=A + 1)
+    start = np.asarray(trials.start[0])
+    rel = (start[0] - int(trials.pose[0])) % A
+    hole = trials._replace(available=trials.available.at[0, rel, start[1], start[2]].set(False))
+    with pytest.raises(ValueError, match="starts at a missing view"):
+        sim.run_trials(key, model, hole)
 
 
 def brute_force_log_belief(model, views, f):

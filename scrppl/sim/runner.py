@@ -258,6 +258,14 @@ def run_trials(
     if not 1 <= n_steps <= max_steps:
         raise ValueError(f"n_steps must lie in 1..{max_steps} for mode {mode!r}, got {n_steps}")
     n = trials.n_trials
+    start = np.asarray(trials.start)
+    rel = (start[:, 0] - np.asarray(trials.pose)) % n_a
+    start_ok = np.asarray(trials.available)[np.arange(n), rel, start[:, 1], start[:, 2]]
+    if not start_ok.all():
+        bad = int(np.flatnonzero(~start_ok)[0])
+        raise ValueError(
+            f"trial {bad} starts at a missing view {tuple(start[bad])} (no image there)"
+        )
     n_dev = len(jax.local_devices()) if devices is None else int(devices)
     if not 1 <= n_dev <= len(jax.local_devices()):
         raise ValueError(f"devices must lie in 1..{len(jax.local_devices())}, got {devices}")
