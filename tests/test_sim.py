@@ -164,6 +164,23 @@ def test_runner_records_are_consistent(table, model, key, planner):
     )
     np.testing.assert_array_equal(np.asarray(again.views), views[:3])
     np.testing.assert_array_equal(np.asarray(again.log_belief), np.asarray(rec.log_belief)[:3])
+    if planner == "sampled":
+        # nor on how many phases (scans scoring only the views that can be left) a trial is split into
+        phased = jax.jit(
+            jax.vmap(
+                lambda k, r, a, p, st: sim.run_trial(k, model, r, a, p, st, n_samples=64, phases=3)
+            )
+        )(
+            jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(6)),
+            trials.responses,
+            trials.available,
+            trials.pose,
+            trials.start,
+        )
+        np.testing.assert_array_equal(np.asarray(phased.views), views)
+        np.testing.assert_allclose(
+            np.asarray(phased.log_belief), np.asarray(rec.log_belief), atol=1e-5
+        )
     if planner == "random":
         # nor on how many CPU devices the trials are split over
         one = sim.run_trials(key, model, trials, planner=planner, chunk_size=CHUNK, devices=1)

@@ -29,8 +29,10 @@ from scrppl.sim.simulator import Trials, robot_frame
 __all__ = ["TrialRecord", "run_trials", "run_trial"]
 
 #: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
-#: that can still be unvisited at its first step (more phases: less work, longer compilation).
+#: that can still be unvisited at its first step (more phases: less work, about twice the compilation
+#: time). Batches of at least ``_MANY_TRIALS`` trials use ``_PHASES``, smaller ones a single phase.
 _PHASES = 3
+_MANY_TRIALS = 2048
 
 
 class TrialRecord(NamedTuple):
@@ -71,6 +73,7 @@ def run_trial(
     n_samples: int = 256,
     order: int = 32,
     motion_cost=0.0,
+    phases: int = 1,
 ) -> TrialRecord:
     """Run one trial (pure, traceable; see :func:`run_trials` for the batched, checked version).
 
@@ -88,6 +91,9 @@ def run_trial(
         Start robot view ``(phi0, e0, s0)``.
     filter, planner, objective, mode, n_steps, n_samples, order, motion_cost
         See :func:`run_trials`.
+    phases
+        Number of scans the steps are split into; each scores only the candidates that can still be
+        unvisited at its first step (the result does not depend on it).
 
     Returns
     -------
@@ -143,7 +149,7 @@ def run_trial(
     n_cand = n_a if mode == "azimuth" else n_a * n_e * n_s
     carry = (belief, visited, current)
     parts = [jax.tree.map(lambda x: x[None], first)]
-    for lo, hi in _phases(n_steps, _PHASES):
+    for lo, hi in _phases(n_steps, phases):
         carry, out = jax.lax.scan(
             partial(step, max_candidates=n_cand - lo), carry, jnp.arange(lo, hi)
         )
@@ -282,6 +288,7 @@ def run_trials(
         ("n_steps", n_steps),
         ("n_samples", int(n_samples)),
         ("order", int(order)),
+        ("phases", _PHASES if n >= _MANY_TRIALS else 1),
     )
     runner = _chunk_runner(n_dev, batch, static)
     outs = []
