@@ -476,3 +476,17 @@ def test_mirrored_pyramid_scores_and_boxes():
     w = pyr.root[0].shape[1]
     np.testing.assert_allclose(mir.part[0][:, : 2 * w], mirror_features(pyr.part[0][:, : 2 * w]))
     assert mirror_pyramid(mir).mirrored is False
+
+
+def test_detections_do_not_nest(trained_dpm, toy_data):
+    """NMS: no kept detection has more than half of the smaller box inside a better one."""
+    _, (test_pos, _) = toy_data
+    t = test_pos[2]
+    dets = trained_dpm.detect(t.image, t.box, threshold=-np.inf)
+    boxes = np.asarray([d.box for d in dets])
+    for i in range(len(boxes)):
+        for j in range(i):
+            ix = max(0.0, min(boxes[i, 2], boxes[j, 2]) - max(boxes[i, 0], boxes[j, 0]))
+            iy = max(0.0, min(boxes[i, 3], boxes[j, 3]) - max(boxes[i, 1], boxes[j, 1]))
+            area = min(np.prod(boxes[i, 2:] - boxes[i, :2]), np.prod(boxes[j, 2:] - boxes[j, :2]))
+            assert ix * iy <= 0.5 * area + 1e-9

@@ -232,6 +232,9 @@ class DeformablePartModel(Detector):
     ) -> list[Detection]:
         """Detections above ``threshold`` (default: the training equal-error threshold), after NMS.
 
+        Non-maximum suppression as in FGMR: a detection is dropped when more than half of the smaller of
+        it and a better detection lies in their intersection.
+
         Returns
         -------
         list of :class:`~scrppl.detectors.base.Detection`, boxes in image coordinates, best first.
@@ -262,7 +265,7 @@ class DeformablePartModel(Detector):
         kept: list[Detection] = []
         kept_boxes: list[np.ndarray] = []
         for score, b, c in cand:
-            if kept_boxes and np.max(box_iou(np.asarray(kept_boxes), b)) > 0.5:
+            if kept_boxes and np.max(_overlap_of_smaller(np.asarray(kept_boxes), b)) > 0.5:
                 continue
             kept_boxes.append(b)
             kept.append(
@@ -490,3 +493,12 @@ def _equal_error_threshold(pos: np.ndarray, neg: np.ndarray) -> float:
     k = int(np.argmin(np.abs(fnr - fpr)))
     # halfway to the next lower score, so a score equal to the threshold's neighbour is not on the edge
     return float(cand[k] if k == 0 else 0.5 * (cand[k] + cand[k - 1]))
+
+
+def _overlap_of_smaller(boxes: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Intersection of ``(n, 4)`` boxes with ``box``, divided by the smaller of the two areas."""
+    ix = np.clip(np.minimum(boxes[:, 2], box[2]) - np.maximum(boxes[:, 0], box[0]), 0, None)
+    iy = np.clip(np.minimum(boxes[:, 3], box[3]) - np.maximum(boxes[:, 1], box[1]), 0, None)
+    areas = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    area = (box[2] - box[0]) * (box[3] - box[1])
+    return ix * iy / np.minimum(areas, area)
