@@ -3,14 +3,46 @@
 A reimplementation of Meger, Gupta & Little, *Viewpoint Detection Models for Sequential Embodied
 Object Category Recognition* (ICRA 2010), with hierarchical Bayesian viewpoint models fitted by MCMC.
 
-Import it as ``import scrppl as sp``. Submodules: :mod:`scrppl.views`, :mod:`scrppl.datasets`,
-:mod:`scrppl.detectors`, :mod:`scrppl.models`, :mod:`scrppl.belief`, :mod:`scrppl.planning`,
-:mod:`scrppl.sim`, :mod:`scrppl.plotting` (the only one that imports matplotlib).
+Import it as ``import scrppl as sp``; the submodules load on first use (``sp.belief``, ``sp.planning``, ...):
+
+* :mod:`scrppl.views` -- the view grid and the relative azimuth;
+* :mod:`scrppl.datasets` -- :class:`~scrppl.datasets.MultiviewDataset`, the Savarese loader, the synthetic
+  dataset;
+* :mod:`scrppl.detectors` -- SIFT matching, bag-of-features, the deformable part model, the response table;
+* :mod:`scrppl.responses` -- the response-table schema;
+* :mod:`scrppl.models` -- viewpoint detection models (the paper's Gaussian, hierarchical NumPyro models) and
+  their posterior predictive :class:`~scrppl.models.ResponseModel`;
+* :mod:`scrppl.belief` -- exact discrete filters over (class, pose);
+* :mod:`scrppl.planning` -- next-view planners (random, sampled / quadrature / plug-in expected entropy);
+* :mod:`scrppl.sim` -- the simulator, trial runner and experiment;
+* :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib).
 """
+
+from __future__ import annotations
+
+import importlib
 
 from scrppl import views
 from scrppl.views import SAVARESE_GRID, ViewGrid, relative_azimuth
 
 __version__ = "0.1.0"
 
-__all__ = ["views", "ViewGrid", "SAVARESE_GRID", "relative_azimuth", "__version__"]
+_SUBMODULES = (
+    "belief",
+    "datasets",
+    "detectors",
+    "models",
+    "planning",
+    "plotting",
+    "report",
+    "responses",
+    "sim",
+)
+
+__all__ = ["views", "ViewGrid", "SAVARESE_GRID", "relative_azimuth", "__version__", *_SUBMODULES]
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f"scrppl.{name}")
+    raise AttributeError(f"module 'scrppl' has no attribute {name!r}")

@@ -97,3 +97,13 @@ def test_atomic_path_gives_ordinary_permissions(tmp_path):
     finally:
         os.umask(umask)
     assert (tmp_path / "f.txt").stat().st_mode & 0o777 == 0o644
+
+
+def test_every_stage_command_line_is_accepted_by_its_command(tmp_path):
+    # reproduce drives the stage commands by their command lines: those must stay in step.
+    args = argparse.Namespace(root=tmp_path / "data", out=tmp_path / "out", seed=0, profile="quick")
+    parser = build_parser()
+    for stage in stages(args):
+        for argv in stage.argv:
+            parsed = parser.parse_args(list(argv) + (["--force"] if stage.takes_force else []))
+            assert parsed.func is not None, argv

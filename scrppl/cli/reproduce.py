@@ -37,6 +37,8 @@ class Stage:
     argv: tuple[tuple[str, ...], ...]
     inputs: tuple[Path, ...]
     outputs: tuple[Path, ...]
+    #: whether the stage's command takes ``--force`` (detect needs none: it reuses only identical work)
+    takes_force: bool = False
 
 
 def is_current(stage: Stage) -> bool:
@@ -78,6 +80,7 @@ def stages(args: argparse.Namespace) -> list[Stage]:
             (("fit", *outdir, *common),),
             (out / "responses.nc",),
             (out / "models" / "diagnostics.json",),
+            takes_force=True,
         ),
         Stage(
             "simulate",
@@ -85,6 +88,7 @@ def stages(args: argparse.Namespace) -> list[Stage]:
             (("simulate", *outdir, *common),),
             (out / "models" / "diagnostics.json",),
             (out / "trials.nc",),
+            takes_force=True,
         ),
     ]
 
@@ -108,7 +112,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"[reproduce] {stage.name}: running", flush=True)
         t0 = time.perf_counter()
         for argv in stage.argv:
-            status = main(list(argv) + (["--force"] if args.force and argv[0] != "dataset" else []))
+            status = main(list(argv) + (["--force"] if args.force and stage.takes_force else []))
             if status:
                 print(
                     f"[reproduce] {stage.name} failed (exit {status}): scrppl {' '.join(argv)}",
