@@ -103,10 +103,10 @@ def check_response_model(
 
 def _gather(model: ResponseModel, o, a, e, s):
     """Per-draw parameters at the given state/view; leading axis N, then the broadcast shape."""
-    mu = model.mu[:, o, a, e, s]
-    sigma = model.sigma[:, o, a, e, s]
-    tau = jnp.broadcast_to(model.tau[:, o], jnp.broadcast_shapes(model.tau[:, o].shape, mu.shape))
-    return mu, sigma, tau
+    o, a, e, s = (jnp.asarray(x) for x in (o, a, e, s))
+    shape = jnp.broadcast_shapes(o.shape, a.shape, e.shape, s.shape)
+    o, a, e, s = (jnp.broadcast_to(x, shape) for x in (o, a, e, s))
+    return model.mu[:, o, a, e, s], model.sigma[:, o, a, e, s], model.tau[:, o]
 
 
 def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
@@ -130,8 +130,7 @@ def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
     """
     o, a, e, s = (jnp.asarray(x) for x in (o, a, e, s))
     shape = jnp.broadcast_shapes(jnp.shape(f), o.shape, a.shape, e.shape, s.shape)
-    o, a, e, s = (jnp.broadcast_to(x, shape) for x in (o, a, e, s))
-    mu, sigma, tau = _gather(model, o, a, e, s)
+    mu, sigma, tau = _gather(model, *(jnp.broadcast_to(x, shape) for x in (o, a, e, s)))
     var = sigma**2 + tau**2
     z = (jnp.broadcast_to(f, shape)[None] - mu) ** 2 / var
     lp = -0.5 * (z + jnp.log(var) + math.log(2 * math.pi))
@@ -140,7 +139,7 @@ def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
 
 def predictive_moments(model: ResponseModel, o, a, e=0, s=0) -> tuple[jax.Array, jax.Array]:
     """Mean and variance of the posterior predictive for a new instance (law of total variance)."""
-    mu, sigma, tau = _gather(model, jnp.asarray(o), jnp.asarray(a), jnp.asarray(e), jnp.asarray(s))
+    mu, sigma, tau = _gather(model, o, a, e, s)
     mean = mu.mean(axis=0)
     var = (sigma**2 + tau**2).mean(axis=0) + mu.var(axis=0)
     return mean, var
