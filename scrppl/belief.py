@@ -32,6 +32,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl.models.response import ResponseModel
+from scrppl.views import check_view_indices
 
 __all__ = [
     "NaiveBayesBelief",
@@ -125,20 +126,14 @@ def _is_concrete(*xs) -> bool:
 def _check_view(model: ResponseModel, phi, e, s) -> None:
     if not _is_concrete(phi, e, s):
         return
-    n_a, n_e, n_s = model.mu.shape[2:5]
-    for name, value, size in (
-        ("robot azimuth", phi, n_a),
-        ("elevation", e, n_e),
-        ("scale", s, n_s),
-    ):
-        arr = np.asarray(value)
-        if not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(f"{name} index must be an integer, got dtype {arr.dtype}")
-        if arr.size and (arr.min() < 0 or arr.max() >= size):
-            raise ValueError(
-                f"{name} index out of the view grid: got {value!r}, the response model's grid has "
-                f"{size} {name}s (0..{size - 1})"
-            )
+    check_view_indices(
+        tuple(model.mu.shape[2:5]),
+        phi,
+        e,
+        s,
+        names=("robot azimuth", "elevation", "scale"),
+        where="the response model's grid",
+    )
 
 
 def _check_response(f) -> None:

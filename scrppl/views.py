@@ -31,6 +31,7 @@ __all__ = [
     "degrees_to_azimuth",
     "wrap_degrees",
     "angular_distance",
+    "check_view_indices",
 ]
 
 
@@ -99,19 +100,7 @@ class ViewGrid:
         Negative azimuths are *not* accepted here: wrap them with :func:`relative_azimuth` or
         ``a % A`` first, so that an off-by-one elsewhere is caught rather than silently wrapped.
         """
-        for name, value, size in (
-            ("azimuth", a, self.n_azimuth),
-            ("elevation", e, self.n_elevation),
-            ("scale", s, self.n_scale),
-        ):
-            arr = np.asarray(value)
-            if not np.issubdtype(arr.dtype, np.integer):
-                raise ValueError(f"{name} index must be an integer, got dtype {arr.dtype}")
-            if arr.size and (arr.min() < 0 or arr.max() >= size):
-                raise ValueError(
-                    f"{name} index out of the view grid: got values in [{arr.min()}, {arr.max()}], "
-                    f"grid has {size} {name}s (0..{size - 1})"
-                )
+        check_view_indices(self.shape, a, e, s)
 
     def view_index(self, a: Any, e: Any, s: Any) -> Any:
         """Flat index ``(a * E + e) * S + s`` of the view ``(a, e, s)``."""
@@ -149,6 +138,39 @@ class ViewGrid:
     def from_dict(cls, d: dict[str, Any]) -> ViewGrid:
         """Build a grid from :meth:`to_dict` output."""
         return cls(int(d["n_azimuth"]), tuple(d["elevations"]), tuple(d["scales"]))
+
+
+def check_view_indices(
+    shape: tuple[int, int, int],
+    a: Any = 0,
+    e: Any = 0,
+    s: Any = 0,
+    *,
+    names: tuple[str, str, str] = ("azimuth", "elevation", "scale"),
+    where: str = "grid",
+) -> None:
+    """Raise ``ValueError`` naming the axis if any index lies outside a grid of ``shape = (A, E, S)``.
+
+    Parameters
+    ----------
+    shape
+        Sizes of the azimuth, elevation and scale axes.
+    a, e, s
+        Integer indices (scalars or arrays).
+    names
+        How the three indices are called in the message (e.g. ``"robot azimuth"``).
+    where
+        What the grid belongs to, for the message (e.g. ``"the response model's grid"``).
+    """
+    for name, value, size in zip(names, (a, e, s), shape, strict=True):
+        arr = np.asarray(value)
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"{name} index must be an integer, got dtype {arr.dtype}")
+        if arr.size and (arr.min() < 0 or arr.max() >= size):
+            raise ValueError(
+                f"{name} index out of the view grid: got values in [{arr.min()}, {arr.max()}], "
+                f"{where} has {size} {name}s (0..{size - 1})"
+            )
 
 
 #: The layout of Savarese et al.'s 3D Object Category dataset: 8 azimuths x 3 heights x 3 scales.
