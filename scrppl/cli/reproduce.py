@@ -77,7 +77,15 @@ def stages(args: argparse.Namespace) -> list[Stage]:
         Stage(
             "fit",
             "scrppl.cli.fit",
-            (("fit", *outdir, *common),),
+            # The quick profile's short chains are a smoke run: its diagnostics are reported, not enforced.
+            (
+                (
+                    "fit",
+                    *outdir,
+                    *common,
+                    *(("--accept-diagnostics",) if args.profile == "quick" else ()),
+                ),
+            ),
             (out / "responses.nc",),
             (out / "models" / "diagnostics.json",),
             takes_force=True,
