@@ -81,6 +81,105 @@ def _section_csv(title: str, path: Path) -> str:
     return f"## {title}\n\nFrom `{path.name}`:\n\n{_md_table(rows)}\n"
 
 
+def _section_detectors(path: Path) -> str:
+    if not path.exists():
+        return ""
+    q = json.loads(path.read_text())
+    ap = q.get("average_precision", {})
+    cats = sorted({c for fam in ap.values() for c in fam})
+    rows = [
+        {
+            "detector": fam,
+            **{c: ap[fam].get(c, "") for c in cats},
+            "mean": q.get("mean_average_precision", {}).get(fam, ""),
+        }
+        for fam in ap
+    ]
+    dep = q.get("azimuth_dependence", {})
+    dep_rows = [
+        {
+            "detector": fam,
+            **{c: f"{v['positive']:.2f} / {v['negative']:.2f}" for c, v in per.items()},
+        }
+        for fam, per in dep.items()
+    ]
+    text = f"## Detectors\n\nOne-vs-rest average precision on the `{q.get('split', 'test')}` split (from `detectors/quality.json`):\n\n"
+    text += _md_table(rows, ["detector", *cats, "mean"])
+    if dep_rows:
+        text += (
+            "\nAzimuth dependence, positives / negatives ("
+            + q.get("azimuth_dependence_definition", "")
+            + "):\n\n"
+        )
+        text += _md_table(dep_rows, ["detector", *cats])
+    if "seconds" in q:
+        text += "\nWall time (s): " + ", ".join(f"{k} {v}" for k, v in q["seconds"].items()) + "\n"
+    return text + "\n"
+
+
+def _section_diagnostics(path: Path) -> str:
+    if not path.exists():
+        return ""
+    diag = json.loads(path.read_text())
+    rows = []
+    for fit, d in sorted(diag.items()):
+        if not isinstance(d, dict) or not isinstance(d.get("rhat_max"), dict):
+            continue
+        rows.append(
+            {
+                "fit": fit,
+                "ok": "yes" if d.get("ok") else "NO",
+                "max R-hat": max(d["rhat_max"].values()),
+                "min bulk ESS": min(d["ess_bulk_min"].values()),
+                "min tail ESS": min(d["ess_tail_min"].values()),
+                "divergences": d.get("divergences", ""),
+                "min E-BFMI": min(d.get("ebfmi", [float("nan")])),
+                "failures": "; ".join(d.get("failures", [])),
+            }
+        )
+    n_ok = sum(r["ok"] == "yes" for r in rows)
+    return (
+        f"## MCMC diagnostics of the hierarchical fits\n\n{n_ok} of {len(rows)} fits pass every check "
+        "(R-hat <= 1.01, bulk ESS >= 400, no divergences, E-BFMI >= 0.3); from `models/diagnostics.json`:\n\n"
+        + _md_table(rows)
+        + "\n"
+    )
+
+
+def _section_experiment(path: Path) -> str:
+    if not path.exists():
+        return ""
+    summ = json.loads(path.read_text())
+    rows = []
+    for target, t in summ.get("targets", {}).items():
+        for exp in ("paper_experiment", "large_experiment"):
+            for method, m in t.get(exp, {}).items():
+                if not isinstance(m, dict) or "views_to_confidence" not in m:
+                    continue
+                v = m["views_to_confidence"]
+                d = m.get("views_to_confidence_difference_95ci", {})
+                rows.append(
+                    {
+                        "target": target,
+                        "experiment": exp.replace("_experiment", ""),
+                        "method": method,
+                        "views, entropy": v.get("sampled", ""),
+                        "views, random": v.get("random", ""),
+                        "difference [95% CI]": f"{d.get('mean', float('nan')):.3f} [{d.get('lo', float('nan')):.3f}, {d.get('hi', float('nan')):.3f}]",
+                        "ECE": m.get("ece", ""),
+                    }
+                )
+    settings = summ.get("settings", {})
+    text = (
+        "## Sequential recognition experiment\n\n"
+        f"Detector `{summ.get('detector', '')}`; views until p(true class) > {settings.get('confidence_threshold', 0.95)} "
+        "for the entropy planner and a random unseen view (paired trials; negative difference = entropy planning "
+        "needs fewer views), and the expected calibration error (ECE) of p(o | F). From `simulate-summary.json` "
+        f"(settings: {json.dumps(settings)}):\n\n"
+    )
+    return text + _md_table(rows) + "\n"
+
+
 def _figures(out: Path) -> str:
     figdir = out / "figures"
     if not figdir.exists():
@@ -135,12 +234,12 @@ def write_report(
                 + "\n"
             )
     parts.append(_section_json("Stage timings (seconds)", out / "timings.json"))
-    parts.append(_section_json("Detector quality (test split)", out / "detectors" / "quality.json"))
-    parts.append(_section_json("MCMC diagnostics", out / "models" / "diagnostics.json"))
+    parts.append(_section_detectors(out / "detectors" / "quality.json"))
+    parts.append(_section_diagnostics(out / "models" / "diagnostics.json"))
     parts.append(
         _section_csv("Held-out comparison of viewpoint models", out / "models" / "heldout.csv")
     )
-    parts.append(_section_json("Sequential recognition experiment", out / "simulate-summary.json"))
+    parts.append(_section_experiment(out / "simulate-summary.json"))
     parts.append(_figures(out))
     path = out / "report.md"
     with atomic_path(path) as tmp:
