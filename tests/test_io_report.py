@@ -65,10 +65,37 @@ def test_report_lists_numbers_and_figures(tmp_path):
     (tmp_path / "figures").mkdir()
     (tmp_path / "figures" / "fig5-car.png").write_bytes(b"\x89PNG")
     (tmp_path / "figures" / "other.png").write_bytes(b"\x89PNG")
-    (tmp_path / "simulate-summary.json").write_text(json.dumps({"views_to_confidence": 2.5}))
+    method = {
+        "views_to_confidence": {"sampled": 2.5, "random": 3.25},
+        "views_to_confidence_difference_95ci": {"mean": -0.75, "lo": -1.0, "hi": -0.5},
+        "ece": 0.04,
+    }
+    summary = {
+        "detector": "dpm",
+        "targets": {"car": {"paper_experiment": {"gaussian+naive_bayes": method}}},
+    }
+    (tmp_path / "simulate-summary.json").write_text(json.dumps(summary))
+    (tmp_path / "models").mkdir()
+    diag = {
+        "thresholds": {"rhat_max": 1.01},
+        "dpm/car": {
+            "ok": False,
+            "rhat_max": {"a": 1.02},
+            "ess_bulk_min": {"a": 300.0},
+            "ess_tail_min": {"a": 250.0},
+            "divergences": 2,
+            "ebfmi": [0.8],
+            "failures": ["R-hat > 1.01: a (1.020)"],
+        },
+    }
+    (tmp_path / "models" / "diagnostics.json").write_text(json.dumps(diag))
     path = write_report(tmp_path, profile="quick", seed=1)
     text = path.read_text()
-    assert "views_to_confidence" in text and "2.5" in text
+    assert (
+        "| car | paper | gaussian+naive_bayes | 2.5 | 3.25 | -0.750 [-1.000, -0.500] | 0.04 |"
+        in text
+    )
+    assert "0 of 1 fits pass" in text and "| dpm/car | NO | 1.02 | 300 | 250 | 2 |" in text
     assert text.index("fig5-car") < text.index("other")  # paper figures first
     assert "--profile quick --seed 1" in text
 
