@@ -137,6 +137,7 @@ def _section_diagnostics(path: Path) -> str:
                 "failures": "; ".join(d.get("failures", [])),
             }
         )
+    rows.sort(key=lambda r: (r["ok"] == "yes", r["fit"]))  # failures first
     n_ok = sum(r["ok"] == "yes" for r in rows)
     return (
         f"## MCMC diagnostics of the hierarchical fits\n\n{n_ok} of {len(rows)} fits pass every check "

@@ -51,7 +51,9 @@ def test_is_current_compares_modification_times(tmp_path):
 
 
 def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
-    args = argparse.Namespace(root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick")
+    args = argparse.Namespace(
+        root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick", strict=True
+    )
     chain = stages(args)
     assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate"]
     for before, after in zip(chain, chain[1:], strict=False):
@@ -128,7 +130,9 @@ def test_atomic_path_gives_ordinary_permissions(tmp_path):
 
 def test_every_stage_command_line_is_accepted_by_its_command(tmp_path):
     # reproduce drives the stage commands by their command lines: those must stay in step.
-    args = argparse.Namespace(root=tmp_path / "data", out=tmp_path / "out", seed=0, profile="quick")
+    args = argparse.Namespace(
+        root=tmp_path / "data", out=tmp_path / "out", seed=0, profile="quick", strict=False
+    )
     parser = build_parser()
     for stage in stages(args):
         for argv in stage.argv:

@@ -132,7 +132,21 @@ def _run(args: argparse.Namespace) -> int:
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
     path = write_report(out, dataset_root=dataset_root(args), profile=args.profile, seed=args.seed)
     print(f"[reproduce] report: {path}")
+    failed = _failed_fits(out / "models" / "diagnostics.json")
+    if failed:
+        print(
+            f"[reproduce] WARNING: {len(failed)} hierarchical fit(s) failed their MCMC diagnostics and were "
+            f"used anyway: {', '.join(failed)} (see the report; --strict stops at such failures)",
+            file=sys.stderr,
+        )
     return 0
+
+
+def _failed_fits(path: Path) -> list[str]:
+    if not path.exists():
+        return []
+    diag = json.loads(path.read_text())
+    return sorted(k for k, v in diag.items() if isinstance(v, dict) and v.get("ok") is False)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
