@@ -119,7 +119,9 @@ def main(argv=None) -> int:
     # serial per-image costs
     rng = np.random.default_rng(0)
     rows = dataset.index.iloc[
-        np.sort(rng.choice(len(dataset.index), min(args.n_images, len(dataset.index)), replace=False))
+        np.sort(
+            rng.choice(len(dataset.index), min(args.n_images, len(dataset.index)), replace=False)
+        )
     ]
     groups = _groups(detectors)
     load_s = 0.0
@@ -151,7 +153,9 @@ def main(argv=None) -> int:
         gi = next(i for i, g in enumerate(group_names) if fam in g.split("+"))
         share = len(group_names[gi].split("+"))
         per_window[fam] = (
-            score[fam] / (n * n_t) + prep[gi] / (n * n_t * share) + load_s / (n * n_t * len(families))
+            score[fam] / (n * n_t)
+            + prep[gi] / (n * n_t * share)
+            + load_s / (n * n_t * len(families))
         )
     serial_wps = {f: 1.0 / v for f, v in per_window.items()}
 
@@ -190,7 +194,8 @@ def main(argv=None) -> int:
     default = [f for f in families if f in ("sift", "bof", "dpm")]
     default_s = FULL_IMAGES * (
         per_image["load_ms"] / 1e3
-        + sum(v for g, v in per_image["prepare_ms"].items() if set(g.split("+")) & set(default)) / 1e3
+        + sum(v for g, v in per_image["prepare_ms"].items() if set(g.split("+")) & set(default))
+        / 1e3
         + FULL_TARGETS * sum(per_image["score_ms_per_target"][f] for f in default) / 1e3
     )
     result = {

@@ -42,8 +42,18 @@ from scrppl.models.simulate import TrueViewpointModel, random_true_model, simula
 from scrppl.views import SAVARESE_GRID  # noqa: E402
 
 OUT = Path(__file__).parent / "results" / "fit.json"
-CATEGORIES = ["bicycle", "car", "cellphone", "head", "iron", "monitor", "mouse", "shoe", "stapler",
-              "toaster"]
+CATEGORIES = [
+    "bicycle",
+    "car",
+    "cellphone",
+    "head",
+    "iron",
+    "monitor",
+    "mouse",
+    "shoe",
+    "stapler",
+    "toaster",
+]
 DETECTORS = ["dpm", "sift", "bof"]
 
 
@@ -55,9 +65,15 @@ def make_table():
             if det != "dpm":  # counts: Anscombe-scale means of a few matches
                 truth = TrueViewpointModel(truth.mu + 2.5, truth.sigma, truth.tau, truth.kappa)
             params[(det, tgt)] = truth
-    return simulate_response_table(jax.random.key(1), params, CATEGORIES, 10, SAVARESE_GRID,
-                                   {"train": 3, "fit": 4, "test": 3},
-                                   transform={"sift": "anscombe", "bof": "anscombe"})
+    return simulate_response_table(
+        jax.random.key(1),
+        params,
+        CATEGORIES,
+        10,
+        SAVARESE_GRID,
+        {"train": 3, "fit": 4, "test": 3},
+        transform={"sift": "anscombe", "bof": "anscombe"},
+    )
 
 
 def summarise(tree, seconds, cpu_seconds):
@@ -92,15 +108,29 @@ def main():
     t0 = time.perf_counter()
     table = make_table()
     result = {
-        "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
-                    "platform": platform.platform(), "jax": jax.__version__,
-                    "devices": jax.local_device_count(),
-                    "load_average_at_start": [round(x, 2) for x in os.getloadavg()]},
-        "table": {"detectors": DETECTORS, "targets": CATEGORIES, "instances_per_category": 10,
-                  "views": 72, "fit_instances_per_category": 4,
-                  "simulate_seconds": round(time.perf_counter() - t0, 2)},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": sys.version.split()[0],
+            "platform": platform.platform(),
+            "jax": jax.__version__,
+            "devices": jax.local_device_count(),
+            "load_average_at_start": [round(x, 2) for x in os.getloadavg()],
+        },
+        "table": {
+            "detectors": DETECTORS,
+            "targets": CATEGORIES,
+            "instances_per_category": 10,
+            "views": 72,
+            "fit_instances_per_category": 4,
+            "simulate_seconds": round(time.perf_counter() - t0, 2),
+        },
         "sampler": config._asdict(),
-        "targets": {"all_fits_seconds": 120, "rhat_max": 1.01, "ess_bulk_min": 400, "divergences": 0},
+        "targets": {
+            "all_fits_seconds": 120,
+            "rhat_max": 1.01,
+            "ess_bulk_min": 400,
+            "divergences": 0,
+        },
     }
     data0, meta0 = extract_view_data(table, "dpm", "bicycle")
     print("fitting all", len(DETECTORS) * len(CATEGORIES), "fits ...", flush=True)
@@ -114,8 +144,10 @@ def main():
     all_cpu = sum(v["cpu_seconds"] for v in per_fit.values())
     first = per_fit["dpm/bicycle"]
     later = [v["seconds"] for k, v in per_fit.items() if k != "dpm/bicycle"]
-    result["one_fit"] = {"with_compilation": first, "median_seconds_after_compilation":
-                         round(float(np.median(later)), 2)}
+    result["one_fit"] = {
+        "with_compilation": first,
+        "median_seconds_after_compilation": round(float(np.median(later)), 2),
+    }
     result["all_fits"] = {
         "seconds": round(all_seconds, 1),
         "cpu_seconds": round(all_cpu, 1),
@@ -125,8 +157,9 @@ def main():
         "max_rhat": max(v["max_rhat"] for v in per_fit.values()),
         "min_bulk_ess": min(v["min_bulk_ess"] for v in per_fit.values()),
         "divergences": sum(v["divergences"] for v in per_fit.values()),
-        "min_bulk_ess_per_s": round(min(v["min_bulk_ess"] for v in per_fit.values()) / all_seconds
-                                    * len(per_fit), 1),
+        "min_bulk_ess_per_s": round(
+            min(v["min_bulk_ess"] for v in per_fit.values()) / all_seconds * len(per_fit), 1
+        ),
         "per_fit": per_fit,
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)
@@ -134,28 +167,37 @@ def main():
 
     print("latent-instance model on dpm/bicycle ...", flush=True)
     runs = {}
-    for label, kw in (("latent_first", {"marginal": False}), ("latent", {"marginal": False}),
-                      ("marginal", {})):
+    for label, kw in (
+        ("latent_first", {"marginal": False}),
+        ("latent", {"marginal": False}),
+        ("marginal", {}),
+    ):
         tree, sec, cpu = fit(jax.random.key(5), data0, meta0, config, **kw)
         runs[label] = summarise(tree, sec, cpu)
         print(label, runs[label], flush=True)
     result["latent_vs_marginal"] = {
         **runs,
-        "seconds_ratio_latent_over_marginal": round(runs["latent"]["seconds"]
-                                                    / runs["marginal"]["seconds"], 2),
-        "cpu_ratio_latent_over_marginal": round(runs["latent"]["cpu_seconds"]
-                                                / runs["marginal"]["cpu_seconds"], 2),
-        "ess_per_s_ratio_marginal_over_latent": round(runs["marginal"]["min_bulk_ess_per_s"]
-                                                      / max(runs["latent"]["min_bulk_ess_per_s"], 1e-9),
-                                                      2),
+        "seconds_ratio_latent_over_marginal": round(
+            runs["latent"]["seconds"] / runs["marginal"]["seconds"], 2
+        ),
+        "cpu_ratio_latent_over_marginal": round(
+            runs["latent"]["cpu_seconds"] / runs["marginal"]["cpu_seconds"], 2
+        ),
+        "ess_per_s_ratio_marginal_over_latent": round(
+            runs["marginal"]["min_bulk_ess_per_s"]
+            / max(runs["latent"]["min_bulk_ess_per_s"], 1e-9),
+            2,
+        ),
     }
     OUT.write_text(json.dumps(result, indent=1))
 
     print("parameterisations on dpm/bicycle ...", flush=True)
     par = {}
-    for label, nc in (("coef_centred", DEFAULT_NONCENTERED),
-                      ("coef_noncentred", DEFAULT_NONCENTERED + ("coef",)),
-                      ("all_centred", ("u",))):
+    for label, nc in (
+        ("coef_centred", DEFAULT_NONCENTERED),
+        ("coef_noncentred", DEFAULT_NONCENTERED + ("coef",)),
+        ("all_centred", ("u",)),
+    ):
         fit(jax.random.key(6), data0, meta0, config, noncentered=nc)  # compile
         tree, sec, cpu = fit(jax.random.key(7), data0, meta0, config, noncentered=nc)
         par[label] = summarise(tree, sec, cpu)

@@ -20,10 +20,13 @@ pytestmark = pytest.mark.slow
 @pytest.fixture
 def out(tmp_path):
     grid = RECOVERY_GRID
-    params = {("dpm", t): random_true_model(jax.random.key(i), grid, kappa=0.0)
-              for i, t in enumerate(["c0", "c1"])}
-    table = simulate_response_table(jax.random.key(7), params, ["c0", "c1"], 10, grid,
-                                    {"fit": 6, "test": 4})
+    params = {
+        ("dpm", t): random_true_model(jax.random.key(i), grid, kappa=0.0)
+        for i, t in enumerate(["c0", "c1"])
+    }
+    table = simulate_response_table(
+        jax.random.key(7), params, ["c0", "c1"], 10, grid, {"fit": 6, "test": 4}
+    )
     save_response_table(table, tmp_path / "responses.nc")
     return tmp_path
 
@@ -55,8 +58,17 @@ def test_fit_command_writes_models_diagnostics_heldout_and_figures(out, capsys):
 
 def test_fit_command_fails_on_bad_diagnostics_unless_accepted(out, monkeypatch, capsys):
     monkeypatch.setitem(diag_module.THRESHOLDS, "ess_bulk_min", 1e9)  # no fit can pass
-    base = ["fit", "--out", str(out), "--profile", "quick", "--no-figures", "--no-progress",
-            "--targets", "c0"]
+    base = [
+        "fit",
+        "--out",
+        str(out),
+        "--profile",
+        "quick",
+        "--no-figures",
+        "--no-progress",
+        "--targets",
+        "c0",
+    ]
     assert main(base) == 3
     err = capsys.readouterr().err
     assert "failed their MCMC diagnostics" in err and "bulk ESS" in err and "dpm/c0" in err

@@ -35,8 +35,9 @@ def test_gaussian_is_the_closed_form_mle(rng, by):
                 vals = y[o == cls, a] if by == "azimuth" else y[o == cls, a, e]
                 vals = vals[~np.isnan(vals)]
                 np.testing.assert_allclose(model.mu[0, cls, a, e, 0], vals.mean(), rtol=1e-5)
-                np.testing.assert_allclose(model.sigma[0, cls, a, e, 0], max(vals.std(ddof=0), 1e-9),
-                                           rtol=1e-5)
+                np.testing.assert_allclose(
+                    model.sigma[0, cls, a, e, 0], max(vals.std(ddof=0), 1e-9), rtol=1e-5
+                )
                 assert n_obs[cls, a, e, 0] == vals.size
 
 
@@ -120,8 +121,9 @@ def test_simulator_matches_its_parameters():
     mu = np.stack([np.full((4, 1, 1), -1.0), np.arange(4.0).reshape(4, 1, 1)])
     truth = TrueViewpointModel(mu, np.full((2, 4), 0.5), np.array([0.3, 0.6]), 0.4)
     cats = [f"c{i}" for i in range(400)]
-    table = simulate_response_table(jax.random.key(3), {("d", "c0"): truth}, cats, 50, grid,
-                                    {"fit": 50})
+    table = simulate_response_table(
+        jax.random.key(3), {("d", "c0"): truth}, cats, 50, grid, {"fit": 50}
+    )
     s = table["score"].values[0, 0]  # (category, instance, A, 1, 1)
     pos = s[0, :, :, 0, 0]
     np.testing.assert_allclose(pos.mean(0), np.arange(4.0), atol=4 * np.sqrt(0.61 / 50))

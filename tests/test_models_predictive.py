@@ -29,13 +29,29 @@ def _posterior(rng, chains=2, draws=50, n_neg=3):
         "kappa": rng.uniform(0.1, 0.5, size=(chains, draws)),
     }
     ss = {"diverging": np.zeros((chains, draws), bool), "energy": rng.normal(size=(chains, draws))}
-    tree = az.from_dict({"posterior": post, "sample_stats": ss},
-                        dims={"mu": ["class", "azimuth", "elevation", "scale"],
-                              "sigma": ["class", "azimuth"], "tau": ["class"]})
-    meta = {"detector": "dpm", "target": "car", "transform": "identity", "n_neg_categories": n_neg,
-            "grid": {"n_azimuth": A, "elevations": [0.0, 1.0], "scales": [1.0]}}
-    tree.attrs.update(kind="hierarchical", detector="dpm", target="car", transform="identity",
-                      meta=json.dumps(meta), diagnostics=json.dumps({"ok": True}))
+    tree = az.from_dict(
+        {"posterior": post, "sample_stats": ss},
+        dims={
+            "mu": ["class", "azimuth", "elevation", "scale"],
+            "sigma": ["class", "azimuth"],
+            "tau": ["class"],
+        },
+    )
+    meta = {
+        "detector": "dpm",
+        "target": "car",
+        "transform": "identity",
+        "n_neg_categories": n_neg,
+        "grid": {"n_azimuth": A, "elevations": [0.0, 1.0], "scales": [1.0]},
+    }
+    tree.attrs.update(
+        kind="hierarchical",
+        detector="dpm",
+        target="car",
+        transform="identity",
+        meta=json.dumps(meta),
+        diagnostics=json.dumps({"ok": True}),
+    )
     return tree, post
 
 
@@ -44,27 +60,37 @@ def test_to_response_model_folds_the_category_variance(rng):
     model = to_response_model(tree)
     assert model.mu.shape == (100, 2, A, E, S) and model.tau.shape == (100, 2)
     np.testing.assert_allclose(model.mu, post["mu"].reshape(100, 2, A, E, S), rtol=1e-6)
-    np.testing.assert_allclose(model.sigma[:, :, :, 1, 0], post["sigma"].reshape(100, 2, A), rtol=1e-6)
+    np.testing.assert_allclose(
+        model.sigma[:, :, :, 1, 0], post["sigma"].reshape(100, 2, A), rtol=1e-6
+    )
     tau, kappa = post["tau"].reshape(100, 2), post["kappa"].reshape(100)
     np.testing.assert_allclose(model.tau[:, 1], tau[:, 1], rtol=1e-6)
-    np.testing.assert_allclose(model.tau[:, 0], np.sqrt(tau[:, 0] ** 2 + kappa**2 * (1 + 1 / 3)),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        model.tau[:, 0], np.sqrt(tau[:, 0] ** 2 + kappa**2 * (1 + 1 / 3)), rtol=1e-6
+    )
     thin = to_response_model(tree, n_draws=10)
     assert thin.mu.shape[0] == 10
     np.testing.assert_allclose(thin.mu[0], model.mu[0]) and np.testing.assert_allclose(
-        thin.mu[-1], model.mu[-1])
+        thin.mu[-1], model.mu[-1]
+    )
 
 
 def test_log_prob_equals_quadrature_over_the_instance_effect(rng):
     tree, _ = _posterior(rng, chains=1, draws=3)
     model = to_response_model(tree)
     f, o, a, e = 0.37, 1, 5, 1
-    mu, sd, tau = (np.asarray(x, dtype=float) for x in (model.mu[:, o, a, e, 0],
-                                                         model.sigma[:, o, a, e, 0], model.tau[:, o]))
+    mu, sd, tau = (
+        np.asarray(x, dtype=float)
+        for x in (model.mu[:, o, a, e, 0], model.sigma[:, o, a, e, 0], model.tau[:, o])
+    )
 
     def density(n):
-        return integrate.quad(lambda u: stats.norm.pdf(f, mu[n] + u, sd[n]) * stats.norm.pdf(u, 0, tau[n]),
-                              -10, 10, epsrel=1e-11)[0]
+        return integrate.quad(
+            lambda u: stats.norm.pdf(f, mu[n] + u, sd[n]) * stats.norm.pdf(u, 0, tau[n]),
+            -10,
+            10,
+            epsrel=1e-11,
+        )[0]
 
     brute = np.log(np.mean([density(n) for n in range(3)]))
     np.testing.assert_allclose(float(log_prob(model, f, o, a, e, 0)), brute, rtol=1e-5)
@@ -91,14 +117,22 @@ def test_saved_and_reloaded_models_give_identical_log_prob(tmp_path, rng):
     before = log_prob(to_response_model(tree), f, 1, 3, 1, 0)
     np.testing.assert_array_equal(np.asarray(log_prob(loaded, f, 1, 3, 1, 0)), np.asarray(before))
 
-    g = ResponseModel(jnp.asarray(rng.normal(size=(1, 2, A, E, S))),
-                      jnp.asarray(rng.uniform(0.5, 1, size=(1, 2, A, E, S))), jnp.zeros((1, 2)))
-    save_gaussian(model_path(tmp_path, "gaussian", "sift", "car"), g, np.ones((2, A, E, S), int),
-                  {"detector": "sift", "target": "car", "transform": "anscombe"})
+    g = ResponseModel(
+        jnp.asarray(rng.normal(size=(1, 2, A, E, S))),
+        jnp.asarray(rng.uniform(0.5, 1, size=(1, 2, A, E, S))),
+        jnp.zeros((1, 2)),
+    )
+    save_gaussian(
+        model_path(tmp_path, "gaussian", "sift", "car"),
+        g,
+        np.ones((2, A, E, S), int),
+        {"detector": "sift", "target": "car", "transform": "anscombe"},
+    )
     g2, ginfo = load_response_model(tmp_path, "gaussian", "sift", "car")
     assert ginfo["transform"] == "anscombe"
-    np.testing.assert_array_equal(np.asarray(log_prob(g2, f, 0, 2, 0, 0)),
-                                  np.asarray(log_prob(g, f, 0, 2, 0, 0)))
+    np.testing.assert_array_equal(
+        np.asarray(log_prob(g2, f, 0, 2, 0, 0)), np.asarray(log_prob(g, f, 0, 2, 0, 0))
+    )
 
 
 def test_loading_errors(tmp_path, rng):
@@ -126,7 +160,9 @@ def test_evaluation_against_closed_forms(key, rng):
         cov = np.diag(sigma[0, o][m] ** 2) + model.tau[0, o] ** 2
         dense = stats.multivariate_normal(mu[0, o][m], cov).logpdf(y[i][m])
         np.testing.assert_allclose(sc["lpd_joint"][i] * m.sum(), dense, rtol=1e-4)
-        single = stats.norm.logpdf(y[i][m], mu[0, o][m], np.sqrt(sigma[0, o][m] ** 2 + model.tau[0, o] ** 2))
+        single = stats.norm.logpdf(
+            y[i][m], mu[0, o][m], np.sqrt(sigma[0, o][m] ** 2 + model.tau[0, o] ** 2)
+        )
         np.testing.assert_allclose(sc["lpd_single"][i], single.mean(), rtol=1e-4)
     # without an instance effect the joint density is the product of the single ones
     paper = ResponseModel(model.mu, model.sigma, jnp.zeros((1, 2)))
@@ -139,8 +175,9 @@ def test_evaluation_against_closed_forms(key, rng):
     u = np.asarray(jax.random.normal(k1, (n,))) * np.asarray(model.tau[0])[o]
     eps = np.asarray(jax.random.normal(k2, (n, A, E, S)))
     ysim = mu[0, o] + u[:, None, None, None] + sigma[0, o] * eps
-    table = evaluate_models({"hier": model, "paper": paper}, make_view_data(ysim, o),
-                            {"detector": "dpm"})
+    table = evaluate_models(
+        {"hier": model, "paper": paper}, make_view_data(ysim, o), {"detector": "dpm"}
+    )
     row = table[(table.kind == "hier") & (table["class"] == "all")].iloc[0]
     assert abs(row.cover50 - 0.5) < 4 * row.cover50_se + 0.01
     assert abs(row.cover90 - 0.9) < 4 * row.cover90_se + 0.01
@@ -151,9 +188,15 @@ def test_evaluation_against_closed_forms(key, rng):
 
 
 def test_diagnostics(rng):
-    good = az.from_dict({"posterior": {"x": rng.normal(size=(4, 1000)), "y": rng.normal(size=(4, 1000, 2))},
-                         "sample_stats": {"diverging": np.zeros((4, 1000), bool),
-                                          "energy": rng.normal(size=(4, 1000))}})
+    good = az.from_dict(
+        {
+            "posterior": {"x": rng.normal(size=(4, 1000)), "y": rng.normal(size=(4, 1000, 2))},
+            "sample_stats": {
+                "diverging": np.zeros((4, 1000), bool),
+                "energy": rng.normal(size=(4, 1000)),
+            },
+        }
+    )
     rep = diagnose(good)
     assert rep["ok"] and rep["n_draws"] == 4000 and rep["divergences"] == 0
     assert rep["rhat_max"]["x"] < 1.01 and rep["ess_bulk_min"]["y"] > 400
@@ -164,8 +207,12 @@ def test_diagnostics(rng):
     energy = np.cumsum(rng.normal(size=(4, 1000)), axis=1)  # random walk: E-BFMI ~ 0
     div = np.zeros((4, 1000), bool)
     div[0, 5] = True
-    bad = az.from_dict({"posterior": {"x": rng.normal(size=(4, 1000)), "alpha": shifted},
-                        "sample_stats": {"diverging": div, "energy": energy}})
+    bad = az.from_dict(
+        {
+            "posterior": {"x": rng.normal(size=(4, 1000)), "alpha": shifted},
+            "sample_stats": {"diverging": div, "energy": energy},
+        }
+    )
     rep = diagnose(bad)
     assert not rep["ok"] and rep["divergences"] == 1
     text = "; ".join(rep["failures"])

@@ -27,7 +27,16 @@ def instances():
 
 def test_categories_are_the_savarese_ten():
     assert CATEGORIES == (
-        "bicycle", "car", "cellphone", "head", "iron", "monitor", "mouse", "shoe", "stapler", "toaster"
+        "bicycle",
+        "car",
+        "cellphone",
+        "head",
+        "iron",
+        "monitor",
+        "mouse",
+        "shoe",
+        "stapler",
+        "toaster",
     )
 
 
@@ -238,7 +247,9 @@ def test_car_front_and_back_alike_but_unlike_the_side(instances):
         (heads,) = _by_name(parts, "headlights")
         (tails,) = _by_name(parts, "taillights")
         assert heads.mesh.vertices[:, 0].min() > 0.45 and tails.mesh.vertices[:, 0].max() < -0.45
-        np.testing.assert_allclose(np.ptp(heads.mesh.vertices[:, 1]), np.ptp(tails.mesh.vertices[:, 1]), rtol=0.05)
+        np.testing.assert_allclose(
+            np.ptp(heads.mesh.vertices[:, 1]), np.ptp(tails.mesh.vertices[:, 1]), rtol=0.05
+        )
         # plates on both ends, wheels and mirrors on the sides
         _by_name(parts, "front_plate"), _by_name(parts, "rear_plate")
         (tyres,) = _by_name(parts, "tyres")
@@ -319,7 +330,9 @@ def test_shoe_toe_front_heel_back(instances):
         back = v[x < x.min() + 0.25 * np.ptp(x)]
         assert back[:, 2].max() > 1.3 * front[:, 2].max()  # low toe, high heel/collar/shaft
         (opening,) = _by_name(parts, "opening")
-        assert opening.mesh.vertices[:, 0].mean() < 0.5 * (x.min() + x.max())  # the opening is at the back
+        assert opening.mesh.vertices[:, 0].mean() < 0.5 * (
+            x.min() + x.max()
+        )  # the opening is at the back
         assert _mirror_x_similarity(parts) < 0.55  # 0.08-0.47 over 30 seeds; cars 0.75-1.0
 
 

@@ -38,14 +38,18 @@ def register(subparsers) -> None:
         "target in <out>/responses.nc; write models/, diagnostics, held-out scores and figures.",
     )
     add_common(p)
-    p.add_argument("--accept-diagnostics", action="store_true",
-                   help="exit 0 even if a fit fails its MCMC diagnostics")
+    p.add_argument(
+        "--accept-diagnostics",
+        action="store_true",
+        help="exit 0 even if a fit fails its MCMC diagnostics",
+    )
     p.add_argument("--force", action="store_true", help="refit even if the models are current")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--detectors", nargs="+", default=None, help="only these detectors")
     p.add_argument("--targets", nargs="+", default=None, help="only these targets")
-    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
-                   help="show progress bars")
+    p.add_argument(
+        "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"
+    )
     p.set_defaults(func=handler)
 
 
@@ -124,8 +128,9 @@ def handler(args: argparse.Namespace) -> int:
         if current(hpath):
             tree = load_posterior(hpath)
         else:
-            tree = fit_hierarchical(jax.random.fold_in(key, job), data, meta, config,
-                                    progress=args.progress, warn=False)  # reported below
+            tree = fit_hierarchical(
+                jax.random.fold_in(key, job), data, meta, config, progress=args.progress, warn=False
+            )  # reported below
             save_posterior(hpath, tree)
         report = json.loads(tree.attrs["diagnostics"])
         report["noncentered"] = json.loads(tree.attrs["meta"]).get("noncentered")
@@ -135,8 +140,13 @@ def handler(args: argparse.Namespace) -> int:
         fitted[(det, tgt)] = (gauss, hier, tree, meta["transform"])
         if has_test:
             test, _ = extract_view_data(table, det, tgt, split="test")
-            heldout.append(evaluate_models({"gaussian": gauss, "hierarchical": hier}, test,
-                                           {"detector": det, "target": tgt}))
+            heldout.append(
+                evaluate_models(
+                    {"gaussian": gauss, "hierarchical": hier},
+                    test,
+                    {"detector": det, "target": tgt},
+                )
+            )
     from scrppl.models.diagnostics import THRESHOLDS
 
     with atomic_path(diag_path) as tmp:
@@ -145,10 +155,21 @@ def handler(args: argparse.Namespace) -> int:
         frame = pd.concat(heldout, ignore_index=True)
         with atomic_path(models_dir / "heldout.csv") as tmp:
             frame.to_csv(tmp, index=False)
-        cols = ["detector", "target", "kind", "lpd_single", "lpd_single_se", "lpd_joint",
-                "lpd_joint_se", "cover50", "cover90"]
-        print("Held-out log predictive density per response (single / joint over the views of an "
-              "instance) and interval coverage, all test instances:")
+        cols = [
+            "detector",
+            "target",
+            "kind",
+            "lpd_single",
+            "lpd_single_se",
+            "lpd_joint",
+            "lpd_joint_se",
+            "cover50",
+            "cover90",
+        ]
+        print(
+            "Held-out log predictive density per response (single / joint over the views of an "
+            "instance) and interval coverage, all test instances:"
+        )
         print(frame[frame["class"] == "all"][cols].to_string(index=False, float_format="%.3f"))
     else:
         print("no 'test' instances in the response table: held-out evaluation skipped")
@@ -156,14 +177,20 @@ def handler(args: argparse.Namespace) -> int:
     if not args.no_figures:
         _figures(fitted, targets, fig_dir, transforms)
 
-    failed = {k: v["failures"] for k, v in diagnostics.items()
-              if k.split("/")[0] in detectors and k.split("/")[1] in targets and not v["ok"]}
+    failed = {
+        k: v["failures"]
+        for k, v in diagnostics.items()
+        if k.split("/")[0] in detectors and k.split("/")[1] in targets and not v["ok"]
+    }
     if failed:
         for name, failures in failed.items():
             print(f"diagnostics failed for {name}: {'; '.join(failures)}", file=sys.stderr)
         if not args.accept_diagnostics:
-            print(f"{len(failed)} fit(s) failed their MCMC diagnostics (see {diag_path}); "
-                  "rerun with --accept-diagnostics to accept them", file=sys.stderr)
+            print(
+                f"{len(failed)} fit(s) failed their MCMC diagnostics (see {diag_path}); "
+                "rerun with --accept-diagnostics to accept them",
+                file=sys.stderr,
+            )
             return 3
     return 0
 
@@ -181,12 +208,16 @@ def _figures(fitted: dict, targets: list[str], fig_dir: Path, transforms) -> Non
             continue
         number = "fig3" if transforms.default_transform(det) == "anscombe" else "fig2"
         scale = "" if transform == "identity" else f" ({transform} scale)"
-        fig = plot_viewpoint_functions([(f"{det} / {tgt}", hier, gauss)],
-                                       radial_label=f"response{scale}")
+        fig = plot_viewpoint_functions(
+            [(f"{det} / {tgt}", hier, gauss)], radial_label=f"response{scale}"
+        )
         save_figure(fig, fig_dir / f"{number}-{det}-{tgt}.png")
     if fitted:
         (det, tgt), (_, _, tree, _) = next(iter(fitted.items()))
-        names = [n for n in ("alpha", "eta", "sigma_class", "instance_sd", "category_sd")
-                 if n in tree["posterior"].data_vars]
+        names = [
+            n
+            for n in ("alpha", "eta", "sigma_class", "instance_sd", "category_sd")
+            if n in tree["posterior"].data_vars
+        ]
         save_figure(plot_fit_trace(tree, names), fig_dir / f"trace-{det}-{tgt}.png")
         save_figure(plot_fit_forest(tree, names), fig_dir / f"forest-{det}-{tgt}.png")

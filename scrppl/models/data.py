@@ -51,7 +51,9 @@ class ViewData(NamedTuple):
         return tuple(self.y.shape[1:4])
 
 
-def make_view_data(y, o, neg_category=None, observed=None, n_neg_categories: int | None = None) -> ViewData:
+def make_view_data(
+    y, o, neg_category=None, observed=None, n_neg_categories: int | None = None
+) -> ViewData:
     """Check and pack response arrays into a :class:`ViewData`.
 
     Parameters
@@ -77,7 +79,9 @@ def make_view_data(y, o, neg_category=None, observed=None, n_neg_categories: int
     """
     y = np.asarray(y, dtype=np.float64)
     if y.ndim != 4:
-        raise ValueError(f"responses must have shape (instance, azimuth, elevation, scale), got {y.shape}")
+        raise ValueError(
+            f"responses must have shape (instance, azimuth, elevation, scale), got {y.shape}"
+        )
     observed = np.ones(y.shape, bool) if observed is None else np.asarray(observed, dtype=bool)
     if observed.shape != y.shape:
         raise ValueError(f"observed mask shape {observed.shape} differs from responses {y.shape}")
@@ -92,7 +96,9 @@ def make_view_data(y, o, neg_category=None, observed=None, n_neg_categories: int
     if o.shape != y.shape[:1]:
         raise ValueError(f"class labels o must have shape {y.shape[:1]}, got {o.shape}")
     if not np.isin(o, (0, 1)).all():
-        raise ValueError(f"class labels o must be 0 (absent) or 1 (present), got {sorted(set(o.tolist()))}")
+        raise ValueError(
+            f"class labels o must be 0 (absent) or 1 (present), got {sorted(set(o.tolist()))}"
+        )
     for cls in (0, 1):
         if not observed[o == cls].any():
             raise ValueError(f"class o={cls} ({CLASS_NAMES[cls]}) has no observed responses")
@@ -145,22 +151,31 @@ def extract_view_data(
     validate_response_table(table)
     table_g = table_grid(table)
     if grid is not None and grid != table_g:
-        raise ValueError(f"view grid {grid.shape} does not match the response table's grid {table_g.shape}")
+        raise ValueError(
+            f"view grid {grid.shape} does not match the response table's grid {table_g.shape}"
+        )
     for name, axis in ((detector, "detector"), (target, "target")):
         if name not in table[axis].values.tolist():
-            raise ValueError(f"{axis} {name!r} is not in the response table; it has "
-                             f"{table[axis].values.tolist()}")
+            raise ValueError(
+                f"{axis} {name!r} is not in the response table; it has "
+                f"{table[axis].values.tolist()}"
+            )
     transform = transforms.default_transform(detector) if transform is None else transform
     categories = [str(c) for c in table["category"].values]
     neg_categories = [c for c in categories if c != target]
-    score = table["score"].sel(detector=detector, target=target).transpose(
-        "category", "instance", "azimuth", "elevation", "scale"
-    ).values
+    score = (
+        table["score"]
+        .sel(detector=detector, target=target)
+        .transpose("category", "instance", "azimuth", "elevation", "scale")
+        .values
+    )
     split_lab = table["split"].values.astype(str)
     rows, cats, idx = [], [], []
     for ci, cat in enumerate(categories):
         for ii in np.flatnonzero(split_lab[ci] == split):
-            if np.isnan(score[ci, ii]).all():  # an instance without a single response carries nothing
+            if np.isnan(
+                score[ci, ii]
+            ).all():  # an instance without a single response carries nothing
                 continue
             rows.append(score[ci, ii])
             cats.append(cat)

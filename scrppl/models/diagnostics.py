@@ -64,18 +64,25 @@ def diagnose(posterior: xr.DataTree, var_names: list[str] | None = None) -> dict
         "n_draws": int(post.sizes["chain"] * post.sizes["draw"]),
     }
     failures = []
-    bad = [f"{k} ({v:.3f})" for k, v in report["rhat_max"].items() if not v <= THRESHOLDS["rhat_max"]]
+    bad = [
+        f"{k} ({v:.3f})" for k, v in report["rhat_max"].items() if not v <= THRESHOLDS["rhat_max"]
+    ]
     if bad:
         failures.append(f"R-hat > {THRESHOLDS['rhat_max']}: " + ", ".join(bad))
-    bad = [f"{k} ({v:.0f})" for k, v in report["ess_bulk_min"].items()
-           if not v >= THRESHOLDS["ess_bulk_min"]]
+    bad = [
+        f"{k} ({v:.0f})"
+        for k, v in report["ess_bulk_min"].items()
+        if not v >= THRESHOLDS["ess_bulk_min"]
+    ]
     if bad:
         failures.append(f"bulk ESS < {THRESHOLDS['ess_bulk_min']:.0f}: " + ", ".join(bad))
     if n_div > THRESHOLDS["divergences"]:
         failures.append(f"{n_div} divergent transitions")
     if (ebfmi < THRESHOLDS["ebfmi_min"]).any():
-        failures.append(f"E-BFMI < {THRESHOLDS['ebfmi_min']} in chains "
-                        f"{np.flatnonzero(ebfmi < THRESHOLDS['ebfmi_min']).tolist()}")
+        failures.append(
+            f"E-BFMI < {THRESHOLDS['ebfmi_min']} in chains "
+            f"{np.flatnonzero(ebfmi < THRESHOLDS['ebfmi_min']).tolist()}"
+        )
     report["failures"] = failures
     report["ok"] = not failures
     return report
@@ -84,5 +91,8 @@ def diagnose(posterior: xr.DataTree, var_names: list[str] | None = None) -> dict
 def warn_if_failed(report: dict, label: str) -> None:
     """Emit a :class:`DiagnosticsWarning` naming the failing parameters of ``label``'s fit, if any."""
     if not report["ok"]:
-        warnings.warn(f"MCMC diagnostics failed for {label}: " + "; ".join(report["failures"]),
-                      DiagnosticsWarning, stacklevel=2)
+        warnings.warn(
+            f"MCMC diagnostics failed for {label}: " + "; ".join(report["failures"]),
+            DiagnosticsWarning,
+            stacklevel=2,
+        )

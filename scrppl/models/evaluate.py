@@ -67,7 +67,9 @@ def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray
     o = jnp.asarray(data.o)
     n_views = obs.reshape(len(data.o), -1).sum(axis=1)
     if (n_views == 0).any():
-        raise ValueError(f"{int((n_views == 0).sum())} held-out instances have no observed response")
+        raise ValueError(
+            f"{int((n_views == 0).sum())} held-out instances have no observed response"
+        )
     A, E, S = data.grid_shape
     a = jnp.arange(A)[None, :, None, None]
     e = jnp.arange(E)[None, None, :, None]
@@ -87,8 +89,9 @@ def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray
     return out
 
 
-def evaluate_models(models: dict[str, ResponseModel], data: ViewData, labels: dict | None = None
-                    ) -> pd.DataFrame:
+def evaluate_models(
+    models: dict[str, ResponseModel], data: ViewData, labels: dict | None = None
+) -> pd.DataFrame:
     """Compare viewpoint models on held-out instances.
 
     Parameters
@@ -110,15 +113,24 @@ def evaluate_models(models: dict[str, ResponseModel], data: ViewData, labels: di
     o = np.asarray(data.o)
     for kind, model in models.items():
         sc = heldout_scores(model, data)
-        for cls_name, sel in (("all", np.ones_like(o, bool)), (CLASS_NAMES[0], o == 0),
-                              (CLASS_NAMES[1], o == 1)):
+        for cls_name, sel in (
+            ("all", np.ones_like(o, bool)),
+            (CLASS_NAMES[0], o == 0),
+            (CLASS_NAMES[1], o == 1),
+        ):
             n = int(sel.sum())
             row = dict(labels or {})
-            row.update(kind=kind, **{"class": cls_name}, n_instances=n,
-                       n_responses=int(sc["n_views"][sel].sum()))
+            row.update(
+                kind=kind,
+                **{"class": cls_name},
+                n_instances=n,
+                n_responses=int(sc["n_views"][sel].sum()),
+            )
             for name in ("lpd_single", "lpd_joint", "cover50", "cover90"):
                 vals = sc[name][sel]
                 row[name] = float(vals.mean()) if n else float("nan")
-                row[f"{name}_se"] = float(vals.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
+                row[f"{name}_se"] = (
+                    float(vals.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
+                )
             rows.append(row)
     return pd.DataFrame(rows)

@@ -94,9 +94,12 @@ def fit_hierarchical(
     loc, scale = standardisation(data)
     model = make_model(marginal, noncentered)
     label = f"{meta['detector']}/{meta['target']}"
-    samples, stats = run_nuts(key, model, model_args(data, loc, scale), config, progress=progress,
-                              desc=label)
-    keep = {k: v for k, v in samples.items() if k not in ("y", "z") and not k.endswith("_decentered")}
+    samples, stats = run_nuts(
+        key, model, model_args(data, loc, scale), config, progress=progress, desc=label
+    )
+    keep = {
+        k: v for k, v in samples.items() if k not in ("y", "z") and not k.endswith("_decentered")
+    }
     n_az, n_el, n_sc = data.grid_shape
     coords = {
         "class": list(CLASS_NAMES),

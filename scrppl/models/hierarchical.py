@@ -195,7 +195,9 @@ def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = Tru
     log_sigma = jnp.broadcast_to(jnp.log(sigma_class)[:, None], (2, n_az))
     if n_az > 1:
         spread = numpyro.sample("sigma_spread", dist.HalfNormal(0.5).expand([2]))
-        dev = numpyro.sample("log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1]))
+        dev = numpyro.sample(
+            "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
+        )
         log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
     sigma = jnp.exp(log_sigma)
     tau = numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2]))
@@ -292,7 +294,10 @@ def model_args(data: ViewData, loc: float | None = None, scale: float | None = N
 
 
 def prior_predictive(
-    key: jax.Array, data: ViewData, n_draws: int = 500, loc: float | None = None,
+    key: jax.Array,
+    data: ViewData,
+    n_draws: int = 500,
+    loc: float | None = None,
     scale: float | None = None,
 ) -> dict[str, np.ndarray]:
     """Draws from the prior predictive: parameters and simulated responses for ``data``'s design.

@@ -57,15 +57,20 @@ def save_gaussian(path: str | Path, model: ResponseModel, n_obs: np.ndarray, met
             "sigma": (dims, np.asarray(model.sigma)[0]),
             "n_obs": (dims, np.asarray(n_obs)),
         },
-        coords={"class": list(CLASS_NAMES), "azimuth": np.arange(mu.shape[1]),
-                "elevation": np.arange(mu.shape[2]), "scale": np.arange(mu.shape[3])},
+        coords={
+            "class": list(CLASS_NAMES),
+            "azimuth": np.arange(mu.shape[1]),
+            "elevation": np.arange(mu.shape[2]),
+            "scale": np.arange(mu.shape[3]),
+        },
         attrs={
             "kind": "gaussian",
             "detector": str(meta["detector"]),
             "target": str(meta["target"]),
             "transform": str(meta["transform"]),
-            "meta": json.dumps({k: v for k, v in meta.items()
-                                if k not in ("instance_category", "instance_index")}),
+            "meta": json.dumps(
+                {k: v for k, v in meta.items() if k not in ("instance_category", "instance_index")}
+            ),
         },
     )
     path = Path(path)
@@ -141,8 +146,11 @@ def load_response_model(
     path = model_path(models_dir, kind, detector, target)
     if kind == "gaussian":
         ds = load_gaussian(path)
-        model = ResponseModel(jnp.asarray(ds["mu"].values[None]), jnp.asarray(ds["sigma"].values[None]),
-                              jnp.zeros((1, ds.sizes["class"])))
+        model = ResponseModel(
+            jnp.asarray(ds["mu"].values[None]),
+            jnp.asarray(ds["sigma"].values[None]),
+            jnp.zeros((1, ds.sizes["class"])),
+        )
         attrs = dict(ds.attrs)
     else:
         from scrppl.models.predictive import to_response_model

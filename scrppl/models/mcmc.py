@@ -85,8 +85,17 @@ class _Compiled(NamedTuple):
 
 
 @functools.lru_cache(maxsize=16)
-def _compiled(model, shapes, n_devices: int, per_device: int, num_warmup: int, target_accept: float,
-              max_tree_depth: int, chunk: int, dense_mass: bool) -> _Compiled:
+def _compiled(
+    model,
+    shapes,
+    n_devices: int,
+    per_device: int,
+    num_warmup: int,
+    target_accept: float,
+    max_tree_depth: int,
+    chunk: int,
+    dense_mass: bool,
+) -> _Compiled:
     # NUTS runs on one flat vector (one op per integrator step instead of one per site)
     _, unravel = ravel_pytree({name: jnp.zeros(shape) for name, shape in shapes})
     size = sum(int(np.prod(shape)) for _, shape in shapes)
@@ -101,9 +110,15 @@ def _compiled(model, shapes, n_devices: int, per_device: int, num_warmup: int, t
         # start near the prior centre of the standardised model (unconstrained 0: unit scales, zero
         # effects), jittered so that chains start apart (R-hat needs dispersed starts)
         z0 = jax.random.uniform(k_init, (size,), minval=-INIT_RADIUS, maxval=INIT_RADIUS)
-        return init_kernel(z0, num_warmup, target_accept_prob=target_accept,
-                           max_tree_depth=max_tree_depth, dense_mass=dense_mass, model_args=args,
-                           rng_key=k_run)
+        return init_kernel(
+            z0,
+            num_warmup,
+            target_accept_prob=target_accept,
+            max_tree_depth=max_tree_depth,
+            dense_mass=dense_mass,
+            model_args=args,
+            rng_key=k_run,
+        )
 
     def step_one(state, args):
         def body(s, _):
@@ -126,8 +141,14 @@ def _compiled(model, shapes, n_devices: int, per_device: int, num_warmup: int, t
     return _Compiled(init, step)
 
 
-def run_nuts(key: jax.Array, model, args: tuple, config: SamplerConfig = DEFAULT_SAMPLER,
-             progress: bool = True, desc: str = "NUTS") -> tuple[dict, dict]:
+def run_nuts(
+    key: jax.Array,
+    model,
+    args: tuple,
+    config: SamplerConfig = DEFAULT_SAMPLER,
+    progress: bool = True,
+    desc: str = "NUTS",
+) -> tuple[dict, dict]:
     """Run NUTS chains of ``model(*args)`` in parallel over the host devices.
 
     Parameters
@@ -154,13 +175,24 @@ def run_nuts(key: jax.Array, model, args: tuple, config: SamplerConfig = DEFAULT
         ``diverging``, ``energy``, ``n_steps``, ``acceptance_rate``, ``step_size``, ``lp``, each
         ``(chains, draws)``.
     """
-    n_dev = max(d for d in range(1, min(config.num_chains, jax.local_device_count()) + 1)
-                if config.num_chains % d == 0)
+    n_dev = max(
+        d
+        for d in range(1, min(config.num_chains, jax.local_device_count()) + 1)
+        if config.num_chains % d == 0
+    )
     per_device = config.num_chains // n_dev
     shapes = latent_site_shapes(model, args)
-    compiled = _compiled(model, shapes, n_dev, per_device, config.num_warmup,
-                         float(config.target_accept_prob), config.max_tree_depth, config.chunk,
-                         bool(config.dense_mass))
+    compiled = _compiled(
+        model,
+        shapes,
+        n_dev,
+        per_device,
+        config.num_warmup,
+        float(config.target_accept_prob),
+        config.max_tree_depth,
+        config.chunk,
+        bool(config.dense_mass),
+    )
     keys = jax.random.split(key, config.num_chains).reshape(n_dev, per_device)
     state = compiled.init(keys, args)
     total = config.num_warmup + config.num_samples
@@ -175,10 +207,12 @@ def run_nuts(key: jax.Array, model, args: tuple, config: SamplerConfig = DEFAULT
             lo = max(config.num_warmup - start, 0)
             hi = min(total - start, config.chunk)
             if hi > lo:
-                kept_params.append(jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]),
-                                                params))
-                kept_stats.append(jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]),
-                                               stats))
+                kept_params.append(
+                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), params)
+                )
+                kept_stats.append(
+                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), stats)
+                )
             bar.update(config.chunk)
 
     def merge(parts):

@@ -46,7 +46,9 @@ def to_response_model(posterior: xr.DataTree, n_draws: int | None = None) -> Res
     post = posterior["posterior"].to_dataset()
     for name in ("mu", "sigma", "tau", "kappa"):
         if name not in post:
-            raise ValueError(f"posterior has no {name!r} variable (not written by fit_hierarchical?)")
+            raise ValueError(
+                f"posterior has no {name!r} variable (not written by fit_hierarchical?)"
+            )
     meta = json.loads(posterior.attrs.get("meta", "{}"))
     n_neg = int(meta.get("n_neg_categories", 1))
 

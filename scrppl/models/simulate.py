@@ -61,7 +61,9 @@ def split_labels(n_categories: int, n_instances: int, splits) -> np.ndarray:
             raise ValueError(f"unknown splits {sorted(unknown)}; expected {SPLITS}")
         row = [name for name in SPLITS for _ in range(int(splits.get(name, 0)))]
         if len(row) != n_instances:
-            raise ValueError(f"split counts add up to {len(row)}, but there are {n_instances} instances")
+            raise ValueError(
+                f"split counts add up to {len(row)}, but there are {n_instances} instances"
+            )
         return np.array([row] * n_categories, dtype=str)
     arr = np.asarray(splits, dtype=str)
     if arr.shape != (n_categories, n_instances):
@@ -70,8 +72,14 @@ def split_labels(n_categories: int, n_instances: int, splits) -> np.ndarray:
 
 
 def random_true_model(
-    key: jax.Array, grid: ViewGrid, *, separation: float = 1.5, profile: float = 0.8,
-    noise: float = 0.4, tau: tuple[float, float] = (0.3, 0.4), kappa: float = 0.3,
+    key: jax.Array,
+    grid: ViewGrid,
+    *,
+    separation: float = 1.5,
+    profile: float = 0.8,
+    noise: float = 0.4,
+    tau: tuple[float, float] = (0.3, 0.4),
+    kappa: float = 0.3,
 ) -> TrueViewpointModel:
     """A plausible smooth ground truth: random low-harmonic azimuth profiles per class.
 
@@ -100,7 +108,7 @@ def random_true_model(
         g = basis @ coef if basis.shape[1] else np.zeros(A)
         elev = rng.normal(0, 0.2, E) - 0.0
         scl = -0.15 * np.arange(S)
-        mu[o] = (o * separation + g[:, None, None] + elev[None, :, None] + scl[None, None, :])
+        mu[o] = o * separation + g[:, None, None] + elev[None, :, None] + scl[None, None, :]
         sd = noise * np.exp(rng.uniform(-0.2, 0.2, A))
         sigma[o] = sd[:, None, None]
     return TrueViewpointModel(mu, sigma, np.asarray(tau, float), float(kappa))
@@ -147,8 +155,14 @@ def simulate_response_table(
     if missing:
         raise ValueError(f"targets {missing} are not among the categories {categories}")
     A, E, S = grid.shape
-    table = empty_response_table(detectors, targets, categories, n_instances, grid,
-                                 split_labels(len(categories), n_instances, splits))
+    table = empty_response_table(
+        detectors,
+        targets,
+        categories,
+        n_instances,
+        grid,
+        split_labels(len(categories), n_instances, splits),
+    )
     transform = dict(transform or {})
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().tolist())
     score = table["score"].values
@@ -168,8 +182,12 @@ def simulate_response_table(
                 o = int(cat == tgt)
                 delta = 0.0 if o else rng.normal(0.0, p.kappa)
                 u = rng.normal(0.0, tau[o], n_instances)
-                f = (mu[o][None] + delta + u[:, None, None, None]
-                     + sigma[o][None] * rng.normal(size=(n_instances, A, E, S)))
+                f = (
+                    mu[o][None]
+                    + delta
+                    + u[:, None, None, None]
+                    + sigma[o][None] * rng.normal(size=(n_instances, A, E, S))
+                )
                 score[di, ti, ci] = transforms.inverse(transform.get(det, "identity"), f)
     validate_response_table(table)
     return table

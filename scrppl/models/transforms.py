@@ -31,8 +31,10 @@ __all__ = ["TRANSFORMS", "DETECTOR_TRANSFORMS", "apply", "inverse", "default_tra
 
 def _check_counts(name: str, x: np.ndarray) -> None:
     if np.any(x[np.isfinite(x)] < 0):
-        raise ValueError(f"transform {name!r} needs non-negative responses (counts); got a minimum of "
-                         f"{np.nanmin(x)}")
+        raise ValueError(
+            f"transform {name!r} needs non-negative responses (counts); got a minimum of "
+            f"{np.nanmin(x)}"
+        )
 
 
 def _anscombe(x: np.ndarray) -> np.ndarray:
@@ -51,7 +53,9 @@ def _log1p(x: np.ndarray) -> np.ndarray:
 
 
 #: name -> (forward, inverse)
-TRANSFORMS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]] = {
+TRANSFORMS: dict[
+    str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]
+] = {
     "identity": (lambda x: np.array(x, dtype=np.float64), lambda f: np.array(f, dtype=np.float64)),
     "anscombe": (_anscombe, _anscombe_inverse),
     "log1p": (_log1p, lambda f: np.expm1(np.asarray(f, dtype=np.float64))),
@@ -65,7 +69,9 @@ def _lookup(name: str):
     try:
         return TRANSFORMS[name]
     except KeyError:
-        raise ValueError(f"unknown response transform {name!r}; known: {sorted(TRANSFORMS)}") from None
+        raise ValueError(
+            f"unknown response transform {name!r}; known: {sorted(TRANSFORMS)}"
+        ) from None
 
 
 def apply(name: str, raw_scores) -> np.ndarray:

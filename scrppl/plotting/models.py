@@ -62,8 +62,13 @@ def plot_viewpoint_functions(
     if not rows:
         raise ValueError("plot_viewpoint_functions needs at least one model")
     z = float(norm.ppf(0.5 + interval / 2))
-    fig, axes = plt.subplots(len(rows), 2, subplot_kw={"projection": "polar"},
-                             figsize=(8, 3.8 * len(rows)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows),
+        2,
+        subplot_kw={"projection": "polar"},
+        figsize=(8, 3.8 * len(rows)),
+        squeeze=False,
+    )
     for r, (title, model, gauss) in enumerate(rows):
         n_az = model.mu.shape[2]
         theta = np.deg2rad(np.r_[np.arange(n_az), 0] * 360.0 / n_az)
@@ -78,8 +83,14 @@ def plot_viewpoint_functions(
         for col, name in enumerate(("positives (target present)", "negatives (target absent)")):
             ax = axes[r, col]
             mean, low, high = curves[col][0]
-            ax.fill_between(theta, low, high, color="tab:blue", alpha=0.25,
-                            label=f"{interval:.0%} predictive band")
+            ax.fill_between(
+                theta,
+                low,
+                high,
+                color="tab:blue",
+                alpha=0.25,
+                label=f"{interval:.0%} predictive band",
+            )
             ax.plot(theta, mean, color="tab:red", lw=2, label="predictive mean")
             if gauss is not None:
                 gm, gl, gh = curves[col][1]

@@ -94,7 +94,9 @@ def plastic(seed: int, color, height: int = 64, width: int = 64) -> np.ndarray:
     return _tint(value_noise(seed, height, width, cells=6), color, 0.12)
 
 
-def brushed_metal(seed: int, color=(0.75, 0.76, 0.78), height: int = 64, width: int = 128) -> np.ndarray:
+def brushed_metal(
+    seed: int, color=(0.75, 0.76, 0.78), height: int = 64, width: int = 128
+) -> np.ndarray:
     """Brushed metal: fine horizontal streaks over a soft vertical gradient."""
     rng = np.random.default_rng(seed)
     streaks = rng.random((height, 1)) * 0.6 + rng.random((height, width)) * 0.15
@@ -119,7 +121,23 @@ def fabric(seed: int, color, height: int = 64, width: int = 64) -> np.ndarray:
     return _tint(0.7 * weave + 0.3 * n, color, 0.4)
 
 
-_SYLLABLES = ("ka", "ze", "to", "ri", "no", "va", "lu", "mi", "xo", "pe", "sa", "do", "ne", "ro", "ti")
+_SYLLABLES = (
+    "ka",
+    "ze",
+    "to",
+    "ri",
+    "no",
+    "va",
+    "lu",
+    "mi",
+    "xo",
+    "pe",
+    "sa",
+    "do",
+    "ne",
+    "ro",
+    "ti",
+)
 
 
 def brand_name(seed: int, n_syllables: int | None = None) -> str:
@@ -191,12 +209,26 @@ def _window(img, rng, x0, y0, x1, y1):
         bw = max(2, (x1 - x0 - 10) // n)
         for k in range(n):
             h = int((y1 - y0 - bar - 10) * rng.uniform(0.2, 1.0))
-            cv2.rectangle(img, (x0 + 5 + k * bw, y1 - 5 - h), (x0 + 4 + (k + 1) * bw - 2, y1 - 5), _c(accent), -1)
+            cv2.rectangle(
+                img,
+                (x0 + 5 + k * bw, y1 - 5 - h),
+                (x0 + 4 + (k + 1) * bw - 2, y1 - 5),
+                _c(accent),
+                -1,
+            )
     else:  # picture
         g = np.linspace(0, 1, y1 - y0 - bar)[:, None, None]
         c0, c1 = rng.random(3), rng.random(3)
-        img[y0 + bar : y1, x0:x1] = _to_uint8(np.broadcast_to(c0 * (1 - g) + c1 * g, (y1 - y0 - bar, x1 - x0, 3)))
-        cv2.circle(img, (int(rng.integers(x0 + 5, x1 - 4)), int(rng.integers(y0 + bar + 3, y1 - 2))), max(3, (x1 - x0) // 8), _c(rng.random(3)), -1)
+        img[y0 + bar : y1, x0:x1] = _to_uint8(
+            np.broadcast_to(c0 * (1 - g) + c1 * g, (y1 - y0 - bar, x1 - x0, 3))
+        )
+        cv2.circle(
+            img,
+            (int(rng.integers(x0 + 5, x1 - 4)), int(rng.integers(y0 + bar + 3, y1 - 2))),
+            max(3, (x1 - x0) // 8),
+            _c(rng.random(3)),
+            -1,
+        )
 
 
 def screen(seed: int, height: int = 120, width: int = 192, kind: str | None = None) -> np.ndarray:
@@ -223,14 +255,33 @@ def screen(seed: int, height: int = 120, width: int = 192, kind: str | None = No
             cv2.rectangle(img, (x, y), (x + 10, y + 10), _c(rng.random(3)), -1)
         for _ in range(int(rng.integers(1, 4))):
             x0, y0 = int(rng.integers(width // 5, width // 2)), int(rng.integers(5, height // 3))
-            _window(img, rng, x0, y0, min(width - 4, x0 + int(rng.integers(width // 3, width // 2))), min(height - 16, y0 + int(rng.integers(height // 3, height // 2))))
+            _window(
+                img,
+                rng,
+                x0,
+                y0,
+                min(width - 4, x0 + int(rng.integers(width // 3, width // 2))),
+                min(height - 16, y0 + int(rng.integers(height // 3, height // 2))),
+            )
         cv2.rectangle(img, (0, height - 12), (width, height), (25, 25, 35), -1)  # task bar
         for k in range(int(rng.integers(3, 8))):
-            cv2.rectangle(img, (6 + 14 * k, height - 10), (16 + 14 * k, height - 2), _c(rng.random(3)), -1)
+            cv2.rectangle(
+                img, (6 + 14 * k, height - 10), (16 + 14 * k, height - 2), _c(rng.random(3)), -1
+            )
     elif kind == "photo":
-        sky0, sky1 = np.array([0.25, 0.45, 0.85]) * rng.uniform(0.7, 1.1), np.array([0.85, 0.75, 0.6])
+        sky0, sky1 = (
+            np.array([0.25, 0.45, 0.85]) * rng.uniform(0.7, 1.1),
+            np.array([0.85, 0.75, 0.6]),
+        )
         img = _to_uint8(np.broadcast_to(sky0 * (1 - g) + sky1 * g, (height, width, 3)))
-        cv2.circle(img, (int(rng.integers(width)), int(rng.integers(height // 3))), height // 10, (255, 230, 150), -1, cv2.LINE_AA)
+        cv2.circle(
+            img,
+            (int(rng.integers(width)), int(rng.integers(height // 3))),
+            height // 10,
+            (255, 230, 150),
+            -1,
+            cv2.LINE_AA,
+        )
         x = np.arange(width)
         rows = np.arange(height)[:, None]
         for k, col in enumerate(([0.2, 0.35, 0.25], [0.25, 0.5, 0.2], [0.45, 0.4, 0.25])):
@@ -254,8 +305,16 @@ def screen(seed: int, height: int = 120, width: int = 192, kind: str | None = No
         img = _canvas(height, width, (0.12, 0.13, 0.16))
         for k in range(4):
             x0 = 6 + k * (width - 12) // 4
-            cv2.rectangle(img, (x0, 6), (x0 + (width - 12) // 4 - 6, height // 3), _c(rng.random(3) * 0.7 + 0.3), -1)
-        pts = np.column_stack([np.linspace(8, width - 8, 20), height - 12 - rng.random(20).cumsum() * (height / 25)]).astype(np.int32)
+            cv2.rectangle(
+                img,
+                (x0, 6),
+                (x0 + (width - 12) // 4 - 6, height // 3),
+                _c(rng.random(3) * 0.7 + 0.3),
+                -1,
+            )
+        pts = np.column_stack(
+            [np.linspace(8, width - 8, 20), height - 12 - rng.random(20).cumsum() * (height / 25)]
+        ).astype(np.int32)
         cv2.polylines(img, [pts], False, (90, 220, 120), 2, cv2.LINE_AA)
     return img
 
@@ -267,7 +326,15 @@ def phone_screen(seed: int, height: int = 160, width: int = 80) -> np.ndarray:
     c0, c1 = rng.random(3), rng.random(3) * 0.5
     img = _to_uint8(np.broadcast_to(c0 * (1 - g) + c1 * g, (height, width, 3)))
     cv2.rectangle(img, (0, 0), (width, 8), (10, 10, 10), -1)
-    cv2.putText(img, f"12:{int(rng.integers(60)):02d}", (3, 7), cv2.FONT_HERSHEY_PLAIN, 0.5, (255, 255, 255), 1)
+    cv2.putText(
+        img,
+        f"12:{int(rng.integers(60)):02d}",
+        (3, 7),
+        cv2.FONT_HERSHEY_PLAIN,
+        0.5,
+        (255, 255, 255),
+        1,
+    )
     cols, rows = 4, int(rng.integers(3, 6))
     s = width // (cols + 1)
     for r in range(rows):
@@ -296,7 +363,15 @@ def keypad_phone(seed: int, body, height: int = 160, width: int = 80) -> np.ndar
             col = ((60, 170, 70), key_color, (200, 60, 60))[c] if r == 0 else key_color
             cv2.rectangle(img, (x + 2, y + 2), (x + kw - 2, y + kh - 2), col, -1)
             if r > 0:
-                cv2.putText(img, str((r - 1) * 3 + c + 1 if r < 4 else "*0#"[c]), (x + kw // 2 - 3, y + kh - 4), cv2.FONT_HERSHEY_PLAIN, 0.7, (30, 30, 30), 1)
+                cv2.putText(
+                    img,
+                    str((r - 1) * 3 + c + 1 if r < 4 else "*0#"[c]),
+                    (x + kw // 2 - 3, y + kh - 4),
+                    cv2.FONT_HERSHEY_PLAIN,
+                    0.7,
+                    (30, 30, 30),
+                    1,
+                )
     return img
 
 
@@ -308,13 +383,23 @@ def tread(seed: int, height: int = 32, width: int = 256, kind: str | None = None
     rng = np.random.default_rng(seed)
     kinds = ("blocks", "chevron", "ribs")
     kind = kind or kinds[int(rng.integers(len(kinds)))]
-    img = _tint(value_noise(int(rng.integers(2**31)), height, width, cells=4, octaves=2), (0.1, 0.1, 0.1), 0.4)
+    img = _tint(
+        value_noise(int(rng.integers(2**31)), height, width, cells=4, octaves=2),
+        (0.1, 0.1, 0.1),
+        0.4,
+    )
     dark = (8, 8, 8)
     period = int(rng.integers(8, 14))
     if kind == "blocks":
         for x in range(0, width, period):
             off = (x // period) % 2 * (period // 2)
-            cv2.rectangle(img, (x + 1, height // 4 + off // 3), (x + period // 2, 3 * height // 4 - off // 3), (35, 35, 35), -1)
+            cv2.rectangle(
+                img,
+                (x + 1, height // 4 + off // 3),
+                (x + period // 2, 3 * height // 4 - off // 3),
+                (35, 35, 35),
+                -1,
+            )
             cv2.line(img, (x, 0), (x, height), dark, 1)
     elif kind == "chevron":
         for x in range(-period, width + period, period):
@@ -354,7 +439,12 @@ def hubcap(seed: int, color=(0.75, 0.75, 0.78), size: int = 64) -> np.ndarray:
     for k in range(n):
         a = phase + 2 * np.pi * (k + 0.5) / n
         pts = []
-        for rad, da in ((0.35, -0.25), (0.85, -0.5 * np.pi / n), (0.85, 0.5 * np.pi / n), (0.35, 0.25)):
+        for rad, da in (
+            (0.35, -0.25),
+            (0.85, -0.5 * np.pi / n),
+            (0.85, 0.5 * np.pi / n),
+            (0.35, 0.25),
+        ):
             pts.append([c + rad * r * np.cos(a + da * 0.6), c + rad * r * np.sin(a + da * 0.6)])
         cv2.fillPoly(img, [np.asarray(pts, np.int32)], gap, cv2.LINE_AA)
     cv2.circle(img, (c, c), int(0.92 * r), _c(np.asarray(color) * 0.6), 1, cv2.LINE_AA)
@@ -370,7 +460,14 @@ def license_plate(seed: int, height: int = 24, width: int = 96) -> np.ndarray:
     cv2.rectangle(img, (1, 1), (width - 2, height - 2), (20, 20, 20), 1)
     letters = "".join(chr(int(c)) for c in rng.integers(65, 91, 3))
     digits = "".join(str(int(d)) for d in rng.integers(0, 10, 3))
-    _put_text_fit(img, f"{letters} {digits}", (4, 3, width - 4, height - 3), (0.05, 0.05, 0.05), cv2.FONT_HERSHEY_DUPLEX, 1)
+    _put_text_fit(
+        img,
+        f"{letters} {digits}",
+        (4, 3, width - 4, height - 3),
+        (0.05, 0.05, 0.05),
+        cv2.FONT_HERSHEY_DUPLEX,
+        1,
+    )
     return img
 
 
@@ -389,11 +486,20 @@ def mouse_top(seed: int, body, height: int = 64, width: int = 128) -> np.ndarray
     cv2.line(img, (x_split, 4 * height // 5), (width, 5 * height // 6), dark, 1)
     if rng.random() < 0.7:
         bx = int(width * 0.3)
-        _put_text_fit(img, brand_name(int(rng.integers(2**31)), 2), (bx - 18, height // 2 - 6, bx + 18, height // 2 + 6), np.asarray(body) * 0.5 + 0.4, cv2.FONT_HERSHEY_SIMPLEX, 1)
+        _put_text_fit(
+            img,
+            brand_name(int(rng.integers(2**31)), 2),
+            (bx - 18, height // 2 - 6, bx + 18, height // 2 + 6),
+            np.asarray(body) * 0.5 + 0.4,
+            cv2.FONT_HERSHEY_SIMPLEX,
+            1,
+        )
     return img
 
 
-def face(seed: int, skin, hair, hair_style: str = "short", height: int = 128, width: int = 256) -> np.ndarray:
+def face(
+    seed: int, skin, hair, hair_style: str = "short", height: int = 128, width: int = 256
+) -> np.ndarray:
     """Equirectangular head texture: the face at the image's centre column, hair around the back.
 
     Mapped onto a head whose texture coordinate ``u = 0.5`` looks along +x (the face) and ``u = 0``,
@@ -420,13 +526,19 @@ def face(seed: int, skin, hair, hair_style: str = "short", height: int = 128, wi
     # hair: covers the crown and the back, with a hairline above the forehead
     if hair_style != "bald":
         hairline = rng.uniform(0.76, 0.84)
-        hair_img = _tint(value_noise(int(rng.integers(2**31)), H, W, cells=16, octaves=2), hair, 0.35)
+        hair_img = _tint(
+            value_noise(int(rng.integers(2**31)), H, W, cells=16, octaves=2), hair, 0.35
+        )
         uu = np.linspace(0, 1, W)[None, :]
         vv = np.linspace(1, 0, H)[:, None]
         side = np.abs(uu - 0.5)  # 0 at the face, 0.5 at the back
         bottom = 0.42 if hair_style == "short" else 0.05  # how low the hair reaches at the back
         # hairline descends from the forehead to the nape around the sides
-        limit = np.where(side < 0.13, hairline, hairline - (hairline - bottom) * np.clip((side - 0.13) / 0.17, 0, 1))
+        limit = np.where(
+            side < 0.13,
+            hairline,
+            hairline - (hairline - bottom) * np.clip((side - 0.13) / 0.17, 0, 1),
+        )
         mask = vv > limit
         img[mask] = hair_img[mask]
     else:
@@ -435,33 +547,82 @@ def face(seed: int, skin, hair, hair_style: str = "short", height: int = 128, wi
         img = _to_uint8(img / 255.0 * (1.0 + 0.08 * np.clip(vv - 0.7, 0, 1))[..., None])
     skin_dark = np.asarray(skin) * 0.6
     # eyes
-    eye_v, eye_du, eye_w = rng.uniform(0.55, 0.62), rng.uniform(0.05, 0.065), rng.uniform(0.022, 0.03)
-    iris = (np.array([0.3, 0.2, 0.1]), np.array([0.2, 0.35, 0.6]), np.array([0.25, 0.4, 0.25]))[int(rng.integers(3))]
+    eye_v, eye_du, eye_w = (
+        rng.uniform(0.55, 0.62),
+        rng.uniform(0.05, 0.065),
+        rng.uniform(0.022, 0.03),
+    )
+    iris = (np.array([0.3, 0.2, 0.1]), np.array([0.2, 0.35, 0.6]), np.array([0.25, 0.4, 0.25]))[
+        int(rng.integers(3))
+    ]
     for sgn in (-1, 1):
         ex, ey = cx + sgn * du(eye_du), row(eye_v)
-        cv2.ellipse(img, (ex, ey), (du(eye_w), max(2, du(eye_w) // 2)), 0, 0, 360, (245, 245, 240), -1, cv2.LINE_AA)
+        cv2.ellipse(
+            img,
+            (ex, ey),
+            (du(eye_w), max(2, du(eye_w) // 2)),
+            0,
+            0,
+            360,
+            (245, 245, 240),
+            -1,
+            cv2.LINE_AA,
+        )
         cv2.circle(img, (ex, ey), max(2, du(eye_w) // 2), _c(iris), -1, cv2.LINE_AA)
         cv2.circle(img, (ex, ey), max(1, du(eye_w) // 4), (10, 10, 10), -1, cv2.LINE_AA)
         brow_c = _c(np.asarray(hair) * 0.8) if hair_style != "bald" else _c(skin_dark)
         by = row(eye_v + rng.uniform(0.07, 0.09))
-        cv2.line(img, (ex - du(eye_w) - 1, by + 1), (ex + du(eye_w) + 1, by - 1 if sgn < 0 else by + 1), brow_c, max(2, H // 50), cv2.LINE_AA)
+        cv2.line(
+            img,
+            (ex - du(eye_w) - 1, by + 1),
+            (ex + du(eye_w) + 1, by - 1 if sgn < 0 else by + 1),
+            brow_c,
+            max(2, H // 50),
+            cv2.LINE_AA,
+        )
     # nose shading and nostrils
     nose_v = rng.uniform(0.42, 0.46)
-    cv2.line(img, (cx - 2, row(eye_v - 0.02)), (cx - 3, row(nose_v)), _c(skin_dark * 1.3), 1, cv2.LINE_AA)
+    cv2.line(
+        img, (cx - 2, row(eye_v - 0.02)), (cx - 3, row(nose_v)), _c(skin_dark * 1.3), 1, cv2.LINE_AA
+    )
     for sgn in (-1, 1):
-        cv2.circle(img, (cx + sgn * du(0.012), row(nose_v)), max(1, H // 90), _c(skin_dark * 0.7), -1)
+        cv2.circle(
+            img, (cx + sgn * du(0.012), row(nose_v)), max(1, H // 90), _c(skin_dark * 0.7), -1
+        )
     # mouth
     mouth_v, mouth_w = rng.uniform(0.3, 0.35), rng.uniform(0.03, 0.045)
     lip = _c(np.asarray(skin) * np.array([0.85, 0.5, 0.5]))
     smile = int(rng.integers(0, 4))
-    cv2.ellipse(img, (cx, row(mouth_v) - smile), (du(mouth_w), max(2, smile + 2)), 0, 0, 180, lip, 2, cv2.LINE_AA)
+    cv2.ellipse(
+        img,
+        (cx, row(mouth_v) - smile),
+        (du(mouth_w), max(2, smile + 2)),
+        0,
+        0,
+        180,
+        lip,
+        2,
+        cv2.LINE_AA,
+    )
     # ears (at u = 0.25 and 0.75, i.e. -y and +y)
     for u in (0.25, 0.75):
-        cv2.ellipse(img, (du(u), row(0.5)), (du(0.02), H // 12), 0, 0, 360, _c(skin_dark * 1.25), 2, cv2.LINE_AA)
+        cv2.ellipse(
+            img,
+            (du(u), row(0.5)),
+            (du(0.02), H // 12),
+            0,
+            0,
+            360,
+            _c(skin_dark * 1.25),
+            2,
+            cv2.LINE_AA,
+        )
     return img
 
 
-def shoe_upper(seed: int, base, accent, style: str = "sneaker", height: int = 64, width: int = 128) -> np.ndarray:
+def shoe_upper(
+    seed: int, base, accent, style: str = "sneaker", height: int = 64, width: int = 128
+) -> np.ndarray:
     """Texture of a shoe's upper.
 
     Mapped with u along the shoe (heel at u = 0, toe at u = 1) and v around its cross-section (right
@@ -479,17 +640,23 @@ def shoe_upper(seed: int, base, accent, style: str = "sneaker", height: int = 64
     mid = H // 2
     acc = _c(accent)
     # toe cap seam
-    cv2.ellipse(img, (int(0.92 * W), mid), (int(0.14 * W), int(0.45 * H)), 0, 90, 270, acc, 1, cv2.LINE_AA)
+    cv2.ellipse(
+        img, (int(0.92 * W), mid), (int(0.14 * W), int(0.45 * H)), 0, 90, 270, acc, 1, cv2.LINE_AA
+    )
     if style in ("sneaker", "boot"):
         x0, x1 = int(0.38 * W), int(0.7 * W)
-        cv2.rectangle(img, (x0, mid - H // 14), (x1, mid + H // 14), _c(np.asarray(base) * 0.55), -1)
+        cv2.rectangle(
+            img, (x0, mid - H // 14), (x1, mid + H // 14), _c(np.asarray(base) * 0.55), -1
+        )
         for x in range(x0 + 3, x1, max(4, (x1 - x0) // 6)):
             cv2.line(img, (x, mid - H // 9), (x + 3, mid + H // 9), (235, 235, 230), 2)
             cv2.line(img, (x + 3, mid - H // 9), (x, mid + H // 9), (235, 235, 230), 2)
     if style == "sneaker":  # side stripes on both sides
         for v0 in (0.2, 0.8):
             y = int((1 - v0) * H)
-            pts = np.array([[int(0.3 * W), y + 6], [int(0.55 * W), y - 4], [int(0.75 * W), y + 2]], np.int32)
+            pts = np.array(
+                [[int(0.3 * W), y + 6], [int(0.55 * W), y - 4], [int(0.75 * W), y + 2]], np.int32
+            )
             cv2.polylines(img, [pts], False, acc, 3, cv2.LINE_AA)
     # stitching along the sole line
     for y in (2, H - 3):

@@ -106,7 +106,11 @@ def disc_y(center, radius: float, facing: int, n: int = 16) -> tuple[trimesh.Tri
     # viewer at +y looks along -y, their right is -x; at -y their right is +x
     u = 0.5 - 0.5 * facing * np.concatenate([[0.0], np.cos(a)])
     v = 0.5 + 0.5 * np.concatenate([[0.0], np.sin(a)])
-    faces = np.stack([np.zeros(n, int), j, i], 1) if facing > 0 else np.stack([np.zeros(n, int), i, j], 1)
+    faces = (
+        np.stack([np.zeros(n, int), j, i], 1)
+        if facing > 0
+        else np.stack([np.zeros(n, int), i, j], 1)
+    )
     return make_mesh(verts, faces), np.column_stack([u, v])
 
 
@@ -149,7 +153,9 @@ def grid_surface(points: np.ndarray, close_u: bool = False) -> tuple[trimesh.Tri
     return make_mesh(verts, faces), uv
 
 
-def superellipse(a: float, b: float, n: int, exponent: float = 2.0, phase: float = 0.0) -> np.ndarray:
+def superellipse(
+    a: float, b: float, n: int, exponent: float = 2.0, phase: float = 0.0
+) -> np.ndarray:
     """Closed superellipse ``|x/a|^p + |y/b|^p = 1`` sampled at ``n`` points counter-clockwise.
 
     Returns
@@ -316,7 +322,9 @@ def ellipsoid(
     return grid_surface(pts, close_u=True)
 
 
-def lathe(profile: np.ndarray, sections: int = 24, center=(0.0, 0.0, 0.0)) -> tuple[trimesh.Trimesh, np.ndarray]:
+def lathe(
+    profile: np.ndarray, sections: int = 24, center=(0.0, 0.0, 0.0)
+) -> tuple[trimesh.Trimesh, np.ndarray]:
     """Surface of revolution about the vertical axis of a profile ``(r, z)`` ordered bottom to top.
 
     Returns
@@ -352,7 +360,9 @@ def torus(
     return grid_surface(pts + np.asarray(center, float), close_u=True)
 
 
-def polyline_tube(points: np.ndarray, radius: float, sections: int = 8, caps: bool = True) -> trimesh.Trimesh:
+def polyline_tube(
+    points: np.ndarray, radius: float, sections: int = 8, caps: bool = True
+) -> trimesh.Trimesh:
     """Tube of constant ``radius`` along a polyline ``points`` (n, 3) (cables, handlebars, frames)."""
     pts = np.asarray(points, float)
     n = len(pts)
@@ -385,7 +395,11 @@ def polyline_tube(points: np.ndarray, radius: float, sections: int = 8, caps: bo
         j = (i + 1) % sections
         last = (n - 1) * sections
         faces = np.concatenate(
-            [faces, np.stack([np.full(sections, c0), j, i], 1), np.stack([np.full(sections, c0 + 1), last + i, last + j], 1)]
+            [
+                faces,
+                np.stack([np.full(sections, c0), j, i], 1),
+                np.stack([np.full(sections, c0 + 1), last + i, last + j], 1),
+            ]
         )
     mesh = make_mesh(verts, faces)
     if caps and mesh.volume < 0:
@@ -393,7 +407,9 @@ def polyline_tube(points: np.ndarray, radius: float, sections: int = 8, caps: bo
     return mesh
 
 
-def loft(polygon: np.ndarray, scales, zs, offsets=None, cap_bottom: bool = True, cap_top: bool = True) -> trimesh.Trimesh:
+def loft(
+    polygon: np.ndarray, scales, zs, offsets=None, cap_bottom: bool = True, cap_top: bool = True
+) -> trimesh.Trimesh:
     """Loft a horizontal polygon through scaled, shifted copies at increasing heights.
 
     Parameters

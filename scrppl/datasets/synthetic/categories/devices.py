@@ -49,7 +49,9 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     bezel = rng.uniform(0.008, 0.04) if not crt else rng.uniform(0.04, 0.06)
     depth = rng.uniform(0.018, 0.04)
     z0 = rng.uniform(0.07, 0.16)  # height of the panel's lower edge
-    body = _pick(rng, _DARK_PLASTICS + _LIGHT_PLASTICS[:1]) if not crt else _pick(rng, _LIGHT_PLASTICS)
+    body = (
+        _pick(rng, _DARK_PLASTICS + _LIGHT_PLASTICS[:1]) if not crt else _pick(rng, _LIGHT_PLASTICS)
+    )
     accent = tuple(np.clip(np.asarray(body) + rng.uniform(-0.05, 0.1), 0, 1))
     pw, ph = W + 2 * bezel, H + 2 * bezel + (rng.uniform(0.0, 0.03))
     zc = z0 + 0.5 * ph
@@ -58,8 +60,14 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     if crt:
         back_depth = rng.uniform(0.28, 0.4) * W
         tube = m.extrude_profile_y(
-            np.array([[-depth / 2, z0 + 0.05 * ph], [-depth / 2 - back_depth, z0 + 0.25 * ph],
-                      [-depth / 2 - back_depth, z0 + 0.8 * ph], [-depth / 2, z0 + 0.95 * ph]]),
+            np.array(
+                [
+                    [-depth / 2, z0 + 0.05 * ph],
+                    [-depth / 2 - back_depth, z0 + 0.25 * ph],
+                    [-depth / 2 - back_depth, z0 + 0.8 * ph],
+                    [-depth / 2, z0 + 0.95 * ph],
+                ]
+            ),
             0.7 * pw,
         )
         shell.append(tube)
@@ -69,7 +77,12 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         # ventilation slots along the top of the back housing
         n_vents = int(rng.integers(5, 12))
         for yv in np.linspace(-0.22 * pw, 0.22 * pw, n_vents):
-            vents.append(m.box((0.003, 0.25 * pw / n_vents, 0.1 * ph), (-depth / 2 - 0.0315, yv, zc + 0.12 * ph)))
+            vents.append(
+                m.box(
+                    (0.003, 0.25 * pw / n_vents, 0.1 * ph),
+                    (-depth / 2 - 0.0315, yv, zc + 0.12 * ph),
+                )
+            )
     # the stand
     stand_kind = "crt" if crt else _pick(rng, ("pedestal", "plate", "vshape", "arm"))
     neck_x = -depth / 2 - (0.03 if not crt else 0.2 * W)
@@ -80,17 +93,36 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         neck_w = rng.uniform(0.04, 0.09)
         neck_top = zc
         if stand_kind == "arm":
-            stand.append(m.polyline_tube(np.array([[neck_x, 0, 0.01], [neck_x - 0.06, 0, 0.6 * zc], [neck_x, 0, neck_top]]), 0.018, 8))
+            stand.append(
+                m.polyline_tube(
+                    np.array(
+                        [[neck_x, 0, 0.01], [neck_x - 0.06, 0, 0.6 * zc], [neck_x, 0, neck_top]]
+                    ),
+                    0.018,
+                    8,
+                )
+            )
         else:
             stand.append(m.box((0.02, neck_w, neck_top), (neck_x - 0.01, 0.0, neck_top / 2)))
         if stand_kind == "pedestal":
-            mesh, _ = m.lathe(np.array([[0.0, 0.0], [0.13 * W + 0.05, 0.0], [0.13 * W + 0.05, 0.012], [0.0, 0.02]]), 24)
+            mesh, _ = m.lathe(
+                np.array(
+                    [[0.0, 0.0], [0.13 * W + 0.05, 0.0], [0.13 * W + 0.05, 0.012], [0.0, 0.02]]
+                ),
+                24,
+            )
             stand.append(m.translate(mesh, (neck_x + 0.04, 0.0, 0.0)))
         elif stand_kind == "plate":
-            stand.append(m.box((0.22, rng.uniform(0.3, 0.5) * W, 0.014), (neck_x + 0.05, 0.0, 0.007)))
+            stand.append(
+                m.box((0.22, rng.uniform(0.3, 0.5) * W, 0.014), (neck_x + 0.05, 0.0, 0.007))
+            )
         else:  # V-shaped feet pointing forward
             for sgn in (-1, 1):
-                foot = m.polyline_tube(np.array([[neck_x, 0.0, 0.008], [neck_x + 0.16, sgn * 0.22 * W, 0.008]]), 0.01, 6)
+                foot = m.polyline_tube(
+                    np.array([[neck_x, 0.0, 0.008], [neck_x + 0.16, sgn * 0.22 * W, 0.008]]),
+                    0.01,
+                    6,
+                )
                 stand.append(foot)
             stand.append(m.box((0.06, 0.06, 0.016), (neck_x, 0.0, 0.008)))
     screen_tex = tx.screen(tex_seed, 120, int(120 * aspect))
@@ -101,13 +133,24 @@ def monitor(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         Part(quad, _mean_color(screen_tex), texture=screen_tex, uv=uv, specular=0.6, name="screen"),
     ]
     if vents:
-        parts.append(Part(m.concat(vents), tuple(0.3 * np.asarray(body) + 0.02), specular=0.1, name="vents"))
+        parts.append(
+            Part(m.concat(vents), tuple(0.3 * np.asarray(body) + 0.02), specular=0.1, name="vents")
+        )
     if bezel > 0.015 and rng.random() < 0.8:  # brand name on the lower bezel
         lab = tx.label(_seed(rng), body, (0.8, 0.8, 0.82), 24, 96, logo=False)
-        lq, luv = m.quad((depth / 2 + 0.002, 0.0, z0 + 0.5 * bezel), "+x", 0.8 * bezel * 4, 0.8 * bezel)
+        lq, luv = m.quad(
+            (depth / 2 + 0.002, 0.0, z0 + 0.5 * bezel), "+x", 0.8 * bezel * 4, 0.8 * bezel
+        )
         parts.append(Part(lq, _mean_color(lab), texture=lab, uv=luv, name="logo"))
     led = m.box((0.004, 0.008, 0.008), (depth / 2 + 0.002, 0.4 * pw, z0 + 0.5 * bezel))
-    parts.append(Part(led, _pick(rng, ((0.2, 0.9, 0.3), (0.3, 0.6, 1.0), (1.0, 0.6, 0.1))), specular=0.8, name="led"))
+    parts.append(
+        Part(
+            led,
+            _pick(rng, ((0.2, 0.9, 0.3), (0.3, 0.6, 1.0), (1.0, 0.6, 0.1))),
+            specular=0.8,
+            name="led",
+        )
+    )
     return parts
 
 
@@ -124,7 +167,11 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     else:
         w, h, t = rng.uniform(0.045, 0.055), rng.uniform(0.1, 0.125), rng.uniform(0.013, 0.02)
         corner = rng.uniform(0.003, 0.01)
-    body = _pick(rng, _DARK_PLASTICS + ((0.75, 0.75, 0.78), (0.8, 0.7, 0.55), (0.55, 0.1, 0.12), (0.1, 0.25, 0.5)))
+    body = _pick(
+        rng,
+        _DARK_PLASTICS
+        + ((0.75, 0.75, 0.78), (0.8, 0.7, 0.55), (0.55, 0.1, 0.12), (0.1, 0.25, 0.5)),
+    )
     # the slab: a rounded rectangle in (y, z), extruded along x
     slab = m.extrude(m.rounded_rect(w, h, corner, 5), -t / 2, t / 2)
     v = np.asarray(slab.vertices)
@@ -138,7 +185,9 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         front, uv = m.quad((t / 2 + 0.0004, 0.0, h / 2), "+x", w * 0.94, h * 0.96)
     lens_r = rng.uniform(0.003, 0.006)
     lens_y = rng.uniform(-0.3, 0.3) * w
-    lens = m.cylinder((-t / 2 - 0.001, lens_y, h - 0.02), (-t / 2 + 0.001, lens_y, h - 0.02), lens_r, 12)
+    lens = m.cylinder(
+        (-t / 2 - 0.001, lens_y, h - 0.02), (-t / 2 + 0.001, lens_y, h - 0.02), lens_r, 12
+    )
     tilt = np.deg2rad(rng.uniform(8.0, 20.0))
     # the dock: a base with a front lip; the phone rests on it, tilted back about the y axis
     dock_h = rng.uniform(0.008, 0.015)
@@ -152,8 +201,16 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     x_phone = -0.5 * t
     dock = [
         m.box((dock_d, w * 1.15, dock_h), (x_phone - 0.25 * dock_d, 0.0, dock_h / 2)),
-        m.box((0.006, w * 1.15, 0.012), (x_phone + 0.5 * t / np.cos(tilt) + 0.004, 0.0, dock_h + 0.006)),
-        m.rotate(m.box((0.006, w * 0.5, 0.6 * h), (x_phone - t / 2 - 0.003, 0.0, dock_h + 0.3 * h)), -tilt, (0, 1, 0), (x_phone, 0, dock_h)),
+        m.box(
+            (0.006, w * 1.15, 0.012),
+            (x_phone + 0.5 * t / np.cos(tilt) + 0.004, 0.0, dock_h + 0.006),
+        ),
+        m.rotate(
+            m.box((0.006, w * 0.5, 0.6 * h), (x_phone - t / 2 - 0.003, 0.0, dock_h + 0.3 * h)),
+            -tilt,
+            (0, 1, 0),
+            (x_phone, 0, dock_h),
+        ),
     ]
     parts = [
         Part(phone_parts[0], body, specular=0.5, name="body"),
@@ -164,7 +221,12 @@ def cellphone(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         d = m.concat(dock)
         wood_tex = tx.wood(_seed(rng))
         vv = np.asarray(d.vertices)
-        duv = np.column_stack([(vv[:, 0] - vv[:, 0].min()) / np.ptp(vv[:, 0]), (vv[:, 1] - vv[:, 1].min()) / np.ptp(vv[:, 1])])
+        duv = np.column_stack(
+            [
+                (vv[:, 0] - vv[:, 0].min()) / np.ptp(vv[:, 0]),
+                (vv[:, 1] - vv[:, 1].min()) / np.ptp(vv[:, 1]),
+            ]
+        )
         parts.append(Part(d, _mean_color(wood_tex), texture=wood_tex, uv=duv, name="dock"))
     else:
         parts.append(Part(m.concat(dock), dock_color, specular=0.3, name="dock"))
@@ -181,7 +243,10 @@ def mouse(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     Hm = L * rng.uniform(0.3, 0.4)
     peak = rng.uniform(-0.25, -0.05)  # position of the highest point along the length
     front_w = rng.uniform(0.7, 0.95)  # front width relative to the back
-    body = _pick(rng, _DARK_PLASTICS + _LIGHT_PLASTICS + ((0.6, 0.1, 0.1), (0.15, 0.3, 0.6), (0.7, 0.7, 0.72)))
+    body = _pick(
+        rng,
+        _DARK_PLASTICS + _LIGHT_PLASTICS + ((0.6, 0.1, 0.1), (0.15, 0.3, 0.6), (0.7, 0.7, 0.72)),
+    )
     nu, nv = 28, 14
     s = np.linspace(-1.0, 1.0, nu)  # back to front
     x = 0.5 * L * s
@@ -195,15 +260,34 @@ def mouse(rng: np.random.Generator, tex_seed: int) -> list[Part]:
     X = np.broadcast_to(x[:, None], Y.shape)
     shell, uv = m.grid_surface(np.stack([X, Y, Z], -1))
     top_tex = tx.mouse_top(tex_seed, body)
-    foot = m.extrude(np.column_stack([np.concatenate([x, x[::-1]]), np.concatenate([-halfw, halfw[::-1]])]), 0.0, base_z)
+    foot = m.extrude(
+        np.column_stack([np.concatenate([x, x[::-1]]), np.concatenate([-halfw, halfw[::-1]])]),
+        0.0,
+        base_z,
+    )
     wheel_x = 0.5 * L * rng.uniform(0.45, 0.6)
     iz = np.argmin(np.abs(x - wheel_x))
     wheel_z = base_z + height[iz]
-    wheel = m.cylinder((wheel_x, -0.004, wheel_z - 0.002), (wheel_x, 0.004, wheel_z - 0.002), 0.008, 12)
+    wheel = m.cylinder(
+        (wheel_x, -0.004, wheel_z - 0.002), (wheel_x, 0.004, wheel_z - 0.002), 0.008, 12
+    )
     parts = [
-        Part(shell, _mean_color(top_tex), texture=top_tex, uv=uv, specular=0.5, smooth=True, name="shell"),
+        Part(
+            shell,
+            _mean_color(top_tex),
+            texture=top_tex,
+            uv=uv,
+            specular=0.5,
+            smooth=True,
+            name="shell",
+        ),
         Part(foot, (0.05, 0.05, 0.05), name="base"),
-        Part(wheel, (0.1, 0.1, 0.1) if np.mean(body) > 0.3 else (0.5, 0.5, 0.5), specular=0.3, name="wheel"),
+        Part(
+            wheel,
+            (0.1, 0.1, 0.1) if np.mean(body) > 0.3 else (0.5, 0.5, 0.5),
+            specular=0.3,
+            name="wheel",
+        ),
     ]
     if rng.random() < 0.8:  # a cable from the front, curving to one side on the table
         side = rng.choice([-1.0, 1.0])
@@ -213,5 +297,11 @@ def mouse(rng: np.random.Generator, tex_seed: int) -> list[Part]:
         cy = side * 0.35 * L * tt**2 * rng.uniform(0.3, 1.0)
         cz = base_z + 0.3 * Hm * (1 - tt) ** 2 + 0.003
         cable = m.polyline_tube(np.column_stack([cx, cy, cz]), 0.0025, 6)
-        parts.append(Part(cable, (0.05, 0.05, 0.05) if np.mean(body) < 0.5 else (0.85, 0.85, 0.85), name="cable"))
+        parts.append(
+            Part(
+                cable,
+                (0.05, 0.05, 0.05) if np.mean(body) < 0.5 else (0.85, 0.85, 0.85),
+                name="cable",
+            )
+        )
     return parts
