@@ -402,9 +402,8 @@ def test_hog_template_is_registered():
 
 @pytest.fixture(scope="module")
 def tiny_dataset(tmp_path_factory):
-    synthetic = pytest.importorskip("scrppl.datasets.synthetic")
-    if not hasattr(synthetic, "make_synthetic"):
-        pytest.skip("the synthetic dataset generator is not available")
+    from scrppl.datasets import synthetic
+
     root = tmp_path_factory.mktemp("tiny")
     return synthetic.make_synthetic(
         root, synthetic.SyntheticConfig.for_profile("tiny"), 0, progress=False
