@@ -34,6 +34,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from scrppl.cli.fit import N_CHAINS, PROFILE_DRAWS  # noqa: E402
+from scrppl.datasets.synthetic.shapes import CATEGORIES as SAVARESE_CATEGORIES  # noqa: E402
 from scrppl.models.data import extract_view_data  # noqa: E402
 from scrppl.models.fit import fit_hierarchical  # noqa: E402
 from scrppl.models.hierarchical import DEFAULT_NONCENTERED  # noqa: E402
@@ -42,18 +43,7 @@ from scrppl.models.simulate import TrueViewpointModel, random_true_model, simula
 from scrppl.views import SAVARESE_GRID  # noqa: E402
 
 OUT = Path(__file__).parent / "results" / "fit.json"
-CATEGORIES = [
-    "bicycle",
-    "car",
-    "cellphone",
-    "head",
-    "iron",
-    "monitor",
-    "mouse",
-    "shoe",
-    "stapler",
-    "toaster",
-]
+CATEGORIES = list(SAVARESE_CATEGORIES)
 DETECTORS = ["dpm", "sift", "bof"]
 
 
