@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_path", "default_cache_dir", "CACHE_ENV"]
+__all__ = ["atomic_path", "default_cache_dir", "CACHE_ENV", "write_netcdf", "read_netcdf"]
 
 #: Environment variable that overrides the default dataset/cache location.
 CACHE_ENV = "SCRPPL_CACHE"
@@ -52,3 +52,22 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def write_netcdf(obj, path: str | os.PathLike) -> Path:
+    """Write an xarray ``Dataset`` or ``DataTree`` to netCDF (h5netcdf) atomically; return the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        obj.to_netcdf(tmp, engine="h5netcdf")
+    return path
+
+
+def read_netcdf(path: str | os.PathLike, what: str = "netCDF file"):
+    """Load a netCDF ``Dataset`` fully into memory; ``FileNotFoundError`` naming ``what`` if it is missing."""
+    import xarray as xr
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} not found: {path}")
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        return ds.load()

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from scrppl._io import atomic_path
+from scrppl._io import read_netcdf, write_netcdf
 from scrppl.views import ViewGrid
 
 __all__ = [
@@ -142,18 +142,11 @@ def class_labels(ds: xr.Dataset) -> xr.DataArray:
 def save_response_table(ds: xr.Dataset, path: str | Path) -> Path:
     """Validate and write a response table to netCDF atomically."""
     validate_response_table(ds)
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        ds.to_netcdf(tmp, engine="h5netcdf")
-    return path
+    return write_netcdf(ds, path)
 
 
 def load_response_table(path: str | Path) -> xr.Dataset:
     """Load and validate a response table written by :func:`save_response_table`."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"response table not found: {path}")
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
-        ds = ds.load()
+    ds = read_netcdf(path, "response table")
     validate_response_table(ds)
     return ds

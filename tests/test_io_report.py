@@ -138,3 +138,16 @@ def test_every_stage_command_line_is_accepted_by_its_command(tmp_path):
         for argv in stage.argv:
             parsed = parser.parse_args(list(argv) + (["--force"] if stage.takes_force else []))
             assert parsed.func is not None, argv
+
+
+def test_netcdf_round_trip_and_missing_file_is_named(tmp_path):
+    import numpy as np
+    import xarray as xr
+
+    from scrppl._io import read_netcdf, write_netcdf
+
+    ds = xr.Dataset({"x": ("i", np.arange(3.0))})
+    write_netcdf(ds, tmp_path / "a.nc")
+    assert read_netcdf(tmp_path / "a.nc").equals(ds)
+    with pytest.raises(FileNotFoundError, match="trials file not found: .*b.nc"):
+        read_netcdf(tmp_path / "b.nc", "trials file")

@@ -20,7 +20,7 @@ import jax
 import numpy as np
 import xarray as xr
 
-from scrppl._io import atomic_path
+from scrppl._io import read_netcdf, write_netcdf
 from scrppl.models.response import ResponseModel
 from scrppl.sim import metrics as M
 from scrppl.sim.runner import run_trials
@@ -275,16 +275,9 @@ def calibration(ds: xr.Dataset, n_bins: int = 10) -> dict:
 
 def save_trials(ds: xr.Dataset, path: str | Path) -> Path:
     """Write an experiment dataset to netCDF atomically."""
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        ds.to_netcdf(tmp, engine="h5netcdf")
-    return path
+    return write_netcdf(ds, path)
 
 
 def load_trials(path: str | Path) -> xr.Dataset:
     """Load an experiment dataset written by :func:`save_trials`."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"trials file not found: {path}")
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
-        return ds.load()
+    return read_netcdf(path, "trials file")
