@@ -1,0 +1,549 @@
+"""Trials with several detectors: fusing all of them at each view, or choosing one per step.
+
+:func:`make_multi_trials` draws trials from a response table exactly as
+:func:`scrppl.sim.make_trials` does for one detector (same random draws: with one detector the trials are
+identical), but keeps the responses of ``D`` detectors for each trial's instance. A view is *available*
+when every detector has a response there (a missing image is missing for all of them), and an instance is
+used only on rings where every detector has all azimuths. :func:`single_detector_trials` slices out one
+detector's :class:`~scrppl.sim.Trials`, so single-detector runs (:func:`scrppl.sim.run_trials`) and
+multi-detector runs see the same instances, poses and start views: paired comparisons.
+
+:func:`run_multi_trials` runs the trials with a fused belief (:mod:`scrppl.extensions.fusion`) under one
+of two policies:
+
+* ``"fuse"`` -- at every step choose a view (random, or minimising the expected entropy after *all*
+  detectors respond, :func:`~scrppl.extensions.fusion.fused_expected_entropies`) and run every detector
+  there. A step is one view.
+* ``"choose"`` -- at every step choose a (view, detector) pair
+  (:func:`~scrppl.extensions.detectors.choose_view_and_detector`, optionally with detector costs) and run
+  that detector only. A step is one detector run; the first step runs the chosen detector at the start
+  view.
+
+With a single detector both policies reproduce :func:`scrppl.sim.run_trials` (same keys, same views).
+Determinism follows the same rule: trial ``i`` uses ``fold_in(key, i)`` and step ``t`` the key
+``fold_in(fold_in(key, i), t)``. The whole trial is a ``jax.lax.scan``; trials are ``vmap``-ed under one
+``jit`` in chunks.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from scrppl import planning as P
+from scrppl.belief import FILTERS, OBJECTIVES
+from scrppl.extensions.detectors import choose_view_and_detector
+from scrppl.extensions.fusion import (
+    check_models,
+    fused_expected_entropies,
+    fused_init,
+    fused_joint_log_belief,
+    fused_update,
+)
+from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.responses import table_grid, validate_response_table
+from scrppl.sim import metrics as M
+from scrppl.sim.simulator import Trials, robot_frame
+from scrppl.views import angular_distance
+
+__all__ = [
+    "MultiTrials",
+    "MultiTrialRecord",
+    "POLICIES",
+    "make_multi_trials",
+    "single_detector_trials",
+    "run_multi_trial",
+    "run_multi_trials",
+    "multi_trial_metrics",
+]
+
+#: Multi-detector policies accepted by :func:`run_multi_trials`.
+POLICIES = ("fuse", "choose")
+
+
+class MultiTrials(NamedTuple):
+    """A batch of trials with the responses of ``D`` detectors (a pytree; leading axis ``T``).
+
+    Attributes
+    ----------
+    responses
+        Transformed object-frame responses ``(T, D, A, E, S)`` (detector ``d`` through its own
+        transform); missing views hold 0.
+    available
+        ``(T, A, E, S)`` boolean: every detector has a response at that view.
+    label, pose, start, category, instance
+        As in :class:`scrppl.sim.Trials`.
+    """
+
+    responses: jax.Array
+    available: jax.Array
+    label: jax.Array
+    pose: jax.Array
+    start: jax.Array
+    category: jax.Array
+    instance: jax.Array
+
+    @property
+    def n_trials(self) -> int:
+        """Number of trials ``T``."""
+        return self.label.shape[0]
+
+    @property
+    def n_detectors(self) -> int:
+        """Number of detectors ``D``."""
+        return self.responses.shape[1]
+
+
+class MultiTrialRecord(NamedTuple):
+    """What happened in each multi-detector trial (leading axes ``(T, K)``).
+
+    Attributes
+    ----------
+    views
+        Robot view ``(phi, e, s)`` of each step, ``(T, K, 3)``.
+    detectors
+        ``(T, K, D)`` boolean: which detectors were run at that step.
+    responses
+        ``(T, K, D)`` responses observed (0 where a detector was not run).
+    observed
+        ``(T, K)`` boolean; ``False`` when nothing was left to observe (the belief is then unchanged).
+    log_belief
+        Normalised ``log p(o, theta | F)`` after each step, ``(T, K, O, A)``.
+    """
+
+    views: jax.Array
+    detectors: jax.Array
+    responses: jax.Array
+    observed: jax.Array
+    log_belief: jax.Array
+
+
+def make_multi_trials(
+    key: jax.Array,
+    table: xr.Dataset,
+    detectors: Sequence[str],
+    target: str,
+    n_trials: int,
+    *,
+    positive_fraction: float = 0.5,
+    transforms: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None,
+    split: str = "test",
+) -> MultiTrials:
+    """Draw ``n_trials`` trials with the responses of several detectors (see :func:`scrppl.sim.make_trials`).
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key (with one detector the trials equal :func:`scrppl.sim.make_trials`'s).
+    table
+        A response table.
+    detectors
+        Detector names (``D``), in the order of the response models they will be used with.
+    target
+        Target category.
+    n_trials
+        Number of trials ``T``.
+    positive_fraction
+        Fraction of trials with a positive instance.
+    transforms
+        One callable (or ``None``: already transformed) per detector, applied to its raw scores.
+    split
+        Which split to draw instances from.
+
+    Returns
+    -------
+    MultiTrials
+    """
+    validate_response_table(table)
+    detectors = list(detectors)
+    if not detectors:
+        raise ValueError("at least one detector is needed")
+    known = table["detector"].values.tolist()
+    for d in detectors:
+        if d not in known:
+            raise ValueError(f"detector {d!r} is not in the response table ({known})")
+    if target not in table["target"].values.tolist():
+        raise ValueError(
+            f"target {target!r} is not in the response table ({table['target'].values.tolist()})"
+        )
+    if n_trials < 1:
+        raise ValueError(f"n_trials must be positive, got {n_trials}")
+    if not 0.0 <= positive_fraction <= 1.0:
+        raise ValueError(f"positive_fraction must lie in [0, 1], got {positive_fraction}")
+    transforms = [None] * len(detectors) if transforms is None else list(transforms)
+    if len(transforms) != len(detectors):
+        raise ValueError(f"{len(detectors)} detectors but {len(transforms)} transforms")
+    scores = []
+    for d, tf in zip(detectors, transforms, strict=True):
+        raw = table["score"].sel(detector=d, target=target).values  # (C, I, A, E, S)
+        score = np.asarray(tf(raw) if tf is not None else raw, dtype=np.float64)
+        if score.shape != raw.shape:
+            raise ValueError(f"transform of {d!r} changed the shape: {raw.shape} -> {score.shape}")
+        if np.isinf(score).any() or (np.isnan(score) & ~np.isnan(raw)).any():
+            raise ValueError(f"transform of {d!r} produced non-finite responses from finite scores")
+        scores.append(score)
+    score = np.stack(scores, axis=2)  # (C, I, D, A, E, S)
+    n_a = table_grid(table).n_azimuth
+    present = ~np.isnan(score).any(axis=2)  # (C, I, A, E, S): every detector responded
+    complete = present.all(axis=2)  # (C, I, E, S)
+    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
+    is_target = table["category"].values == target
+    pools = {
+        1: np.argwhere(usable & is_target[:, None]),
+        0: np.argwhere(usable & ~is_target[:, None]),
+    }
+    n_pos = int(round(positive_fraction * n_trials))
+    counts = {1: n_pos, 0: n_trials - n_pos}
+    for o, pool in pools.items():
+        if counts[o] and len(pool) == 0:
+            kind = "positive" if o else "negative"
+            raise ValueError(
+                f"no {kind} instances for target {target!r} in split {split!r} with a complete azimuth "
+                f"ring for every detector of {detectors}"
+            )
+    # the same draws, in the same order, as scrppl.sim.make_trials
+    k_order, k_inst, k_pose, k_phi, k_ring = jax.random.split(key, 5)
+    labels = np.asarray(
+        jax.random.permutation(k_order, np.r_[np.ones(n_pos), np.zeros(n_trials - n_pos)])
+    ).astype(np.int32)
+    u_inst = np.asarray(jax.random.uniform(k_inst, (n_trials,)))
+    u_ring = np.asarray(jax.random.uniform(k_ring, (n_trials,)))
+    cat = np.empty(n_trials, np.int32)
+    inst = np.empty(n_trials, np.int32)
+    ring = np.empty((n_trials, 2), np.int32)
+    for t in range(n_trials):
+        pool = pools[int(labels[t])]
+        c, i = pool[min(int(u_inst[t] * len(pool)), len(pool) - 1)]
+        rings = np.argwhere(complete[c, i])
+        cat[t], inst[t] = c, i
+        ring[t] = rings[min(int(u_ring[t] * len(rings)), len(rings) - 1)]
+    pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
+    phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
+    resp = score[cat, inst]  # (T, D, A, E, S)
+    avail = present[cat, inst]  # (T, A, E, S)
+    return MultiTrials(
+        responses=jnp.asarray(np.where(avail[:, None], resp, 0.0), jnp.float32),
+        available=jnp.asarray(avail),
+        label=jnp.asarray(labels),
+        pose=jnp.asarray(pose),
+        start=jnp.asarray(np.c_[phi0, ring]),
+        category=jnp.asarray(cat),
+        instance=jnp.asarray(inst),
+    )
+
+
+def single_detector_trials(trials: MultiTrials, d: int) -> Trials:
+    """Detector ``d``'s view of the trials, as :class:`scrppl.sim.Trials` (same instances, poses, starts)."""
+    return Trials(
+        trials.responses[:, d],
+        trials.available,
+        trials.label,
+        trials.pose,
+        trials.start,
+        trials.category,
+        trials.instance,
+    )
+
+
+def run_multi_trial(
+    key: jax.Array,
+    models: Sequence[ResponseModel],
+    responses,
+    available,
+    pose,
+    start,
+    costs=None,
+    cost_weight=0.0,
+    motion_cost=0.0,
+    *,
+    policy: str = "fuse",
+    filter: str = "naive_bayes",
+    planner: str = "sampled",
+    objective: str = "joint",
+    mode: str = "azimuth",
+    n_steps: int = 8,
+    n_samples: int = 256,
+    order: int = 32,
+) -> MultiTrialRecord:
+    """Run one multi-detector trial (pure, traceable; :func:`run_multi_trials` is the checked batch).
+
+    Parameters
+    ----------
+    key
+        The trial's PRNG key.
+    models
+        One response model per detector (``D``).
+    responses
+        Object-frame responses ``(D, A, E, S)``.
+    available
+        Object-frame availability ``(A, E, S)``.
+    pose
+        Hidden pose ``theta*``.
+    start
+        Start robot view ``(phi0, e0, s0)``.
+    costs, cost_weight
+        Per-detector costs ``(D,)`` and nats per unit cost (``"choose"`` policy).
+    motion_cost
+        Nats per azimuth bin travelled.
+    policy, filter, planner, objective, mode, n_steps, n_samples, order
+        See :func:`run_multi_trials`.
+
+    Returns
+    -------
+    MultiTrialRecord
+        Arrays with a leading step axis ``K = n_steps``.
+    """
+    models = check_models(models)
+    n_det = len(models)
+    responses = jnp.asarray(responses)
+    resp_r = jax.vmap(lambda r: robot_frame(r, available, pose)[0])(responses)  # (D, A, E, S)
+    _, avail_r = robot_frame(responses[0], available, pose)
+    start = jnp.asarray(start, jnp.int32)
+    n_a = avail_r.shape[0]
+    costs = jnp.zeros(n_det) if costs is None else jnp.asarray(costs)
+
+    def observe(belief, view, mask, found):
+        f = resp_r[:, view[0], view[1], view[2]]
+        mask = mask & found
+        new = fused_update(models, belief, f, view[0], view[1], view[2], mask=mask)
+        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
+        return belief, jnp.where(mask, f, 0.0), mask
+
+    belief0 = fused_init(filter, models)
+
+    if policy == "fuse":
+        all_det = jnp.ones(n_det, bool)
+        belief, f0, used0 = observe(belief0, start, all_det, jnp.asarray(True))
+        visited = jnp.zeros(avail_r.shape, bool).at[start[0], start[1], start[2]].set(True)
+        first = (start, used0, f0, jnp.asarray(True), fused_joint_log_belief(belief))
+
+        def step(carry, t):
+            belief, visited, current = carry
+            k = jax.random.fold_in(key, t)
+            views, valid = P.candidate_views(current, visited, avail_r, mode)
+            if planner == "random":
+                idx, found = P.random_unseen_view(k, valid)
+            else:
+                h = fused_expected_entropies(
+                    k, models, belief, views, planner, objective, n_samples, order
+                )
+                h = h + motion_cost * angular_distance(views[:, 0], current[0], n_a)
+                idx = jnp.argmin(jnp.where(valid, h, jnp.inf))
+                found = valid.any()
+            view = jnp.where(found, views[idx].astype(jnp.int32), current)
+            belief, f, used = observe(belief, view, all_det, found)
+            visited = visited.at[view[0], view[1], view[2]].set(True)
+            out = (view, used, f, found, fused_joint_log_belief(belief))
+            return (belief, visited, view), out
+
+        carry = (belief, visited, start)
+    elif policy == "choose":
+        avail_d = jnp.broadcast_to(avail_r, (n_det, *avail_r.shape))
+        visited0 = jnp.zeros(avail_d.shape, bool)
+
+        def pick(k, belief, visited, current, allowed):
+            view, det, found, _ = choose_view_and_detector(
+                k,
+                models,
+                belief,
+                current,
+                visited,
+                allowed,
+                costs,
+                cost_weight,
+                planner,
+                objective,
+                mode,
+                n_samples,
+                order,
+                motion_cost,
+            )
+            view = jnp.where(found, view.astype(jnp.int32), current)
+            mask = jnp.arange(n_det) == det
+            belief, f, used = observe(belief, view, mask, found)
+            visited = visited.at[:, view[0], view[1], view[2]].set(
+                visited[:, view[0], view[1], view[2]] | used
+            )
+            return belief, visited, view, (view, used, f, found, fused_joint_log_belief(belief))
+
+        # step 0: the robot is at the start view; choose the detector to run there
+        at_start = jnp.zeros(avail_r.shape, bool).at[start[0], start[1], start[2]].set(True)
+        belief, visited, current, first = pick(
+            jax.random.fold_in(key, 0), belief0, visited0, start, avail_d & at_start
+        )
+
+        def step(carry, t):
+            belief, visited, current = carry
+            belief, visited, view, out = pick(
+                jax.random.fold_in(key, t), belief, visited, current, avail_d
+            )
+            return (belief, visited, view), out
+
+        carry = (belief, visited, current)
+    else:
+        raise ValueError(f"unknown policy {policy!r}; expected one of {POLICIES}")
+
+    _, outs = jax.lax.scan(step, carry, jnp.arange(1, n_steps))
+    parts = [jax.tree.map(lambda x: x[None], first), outs]
+    return MultiTrialRecord(*(jnp.concatenate(x) for x in zip(*parts, strict=True)))
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled(static: tuple):
+    options = dict(static)
+
+    def run(keys, models, responses, available, pose, start, costs, cost_weight, motion_cost):
+        return jax.vmap(
+            lambda k, r, a, p, s: run_multi_trial(
+                k, models, r, a, p, s, costs, cost_weight, motion_cost, **options
+            )
+        )(keys, responses, available, pose, start)
+
+    return jax.jit(run)
+
+
+def run_multi_trials(
+    key: jax.Array,
+    models: Sequence[ResponseModel],
+    trials: MultiTrials,
+    *,
+    policy: str = "fuse",
+    filter: str = "naive_bayes",
+    planner: str = "sampled",
+    objective: str = "joint",
+    mode: str = "azimuth",
+    n_steps: int | None = None,
+    n_samples: int = 256,
+    order: int = 32,
+    costs=None,
+    cost_weight: float = 0.0,
+    motion_cost: float = 0.0,
+    chunk_size: int = 256,
+) -> MultiTrialRecord:
+    """Run every trial with several detectors under one policy, filter and planner.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key (trial ``i`` uses ``fold_in(key, i)``, as :func:`scrppl.sim.run_trials`).
+    models
+        One response model per detector, in the order of ``trials.responses``' detector axis.
+    trials
+        The trials (:func:`make_multi_trials`).
+    policy
+        ``"fuse"`` (every detector at each chosen view) or ``"choose"`` (one chosen (view, detector)
+        pair per step).
+    filter
+        ``"naive_bayes"`` or ``"instance"`` (fused, :mod:`scrppl.extensions.fusion`).
+    planner
+        ``"random"``, ``"sampled"`` or ``"quadrature"`` (``"choose"`` also takes ``"plug_in"``).
+    objective
+        ``"joint"``, ``"class"`` or ``"pose"``.
+    mode
+        Candidate views: ``"azimuth"`` or ``"all"``.
+    n_steps
+        Steps per trial (default: the number of candidate views ``C``; at most ``C`` for ``"fuse"`` and
+        ``C * D`` for ``"choose"``).
+    n_samples, order
+        ``M`` of the sampled planner; Gauss-Hermite order of the quadrature planner (per detector).
+    costs, cost_weight
+        Per-detector costs ``(D,)`` and nats per unit cost (``"choose"`` only).
+    motion_cost
+        Nats per azimuth bin travelled.
+    chunk_size
+        Trials per compiled call (the last chunk is padded with repeats).
+
+    Returns
+    -------
+    MultiTrialRecord
+        Arrays with leading axes ``(T, K)``.
+    """
+    models = check_models(models)
+    n_det = len(models)
+    if trials.n_detectors != n_det:
+        raise ValueError(f"the trials have {trials.n_detectors} detectors, {n_det} models given")
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; expected one of {POLICIES}")
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
+    if objective not in OBJECTIVES:
+        raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
+    allowed = ("random", "sampled", "quadrature") + (("plug_in",) if policy == "choose" else ())
+    if planner not in allowed:
+        raise ValueError(f"unknown planner {planner!r} for policy {policy!r}; expected {allowed}")
+    if mode not in P.MODES:
+        raise ValueError(f"unknown candidate mode {mode!r}; expected one of {P.MODES}")
+    grid_shape = tuple(trials.available.shape[1:])
+    for m in models:
+        check_response_model(m, grid_shape)
+    n_a, n_e, n_s = grid_shape
+    n_cand = n_a if mode == "azimuth" else n_a * n_e * n_s
+    max_steps = n_cand if policy == "fuse" else n_cand * n_det
+    n_steps = n_cand if n_steps is None else int(n_steps)
+    if not 1 <= n_steps <= max_steps:
+        raise ValueError(f"n_steps must lie in 1..{max_steps} for policy {policy!r}, got {n_steps}")
+    costs = np.zeros(n_det) if costs is None else np.asarray(costs, np.float64)
+    if costs.shape != (n_det,) or not np.isfinite(costs).all():
+        raise ValueError(f"costs must be {n_det} finite numbers, got {costs!r}")
+    n = trials.n_trials
+    start = np.asarray(trials.start)
+    if not np.asarray(trials.available)[
+        np.arange(n), (start[:, 0] - np.asarray(trials.pose)) % n_a, start[:, 1], start[:, 2]
+    ].all():
+        raise ValueError("a trial starts at a missing view (no image there)")
+    static = (
+        ("policy", policy),
+        ("filter", filter),
+        ("planner", planner),
+        ("objective", objective),
+        ("mode", mode),
+        ("n_steps", n_steps),
+        ("n_samples", int(n_samples)),
+        ("order", int(order)),
+    )
+    runner = _compiled(static)
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n))
+    chunk = max(1, min(int(chunk_size), n))
+    outs = []
+    for lo in range(0, n, chunk):
+        sel = np.minimum(np.arange(lo, lo + chunk), n - 1)
+        out = runner(
+            keys[sel],
+            models,
+            trials.responses[sel],
+            trials.available[sel],
+            trials.pose[sel],
+            trials.start[sel],
+            jnp.asarray(costs, jnp.float32),
+            jnp.float32(cost_weight),
+            jnp.float32(motion_cost),
+        )
+        keep = min(chunk, n - lo)
+        outs.append([np.asarray(x[:keep]) for x in out])
+    return MultiTrialRecord(
+        *(jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True))
+    )
+
+
+def multi_trial_metrics(
+    record: MultiTrialRecord, trials: MultiTrials, threshold: float = M.CONFIDENCE
+) -> dict:
+    """Per-step metrics of :func:`scrppl.sim.metrics.trial_metrics` for multi-detector trials.
+
+    ``response_sum`` adds the responses of every detector run (on their own transformed scales); the
+    other metrics depend on the belief only. For the ``"choose"`` policy a step is one detector run.
+    """
+    return M.trial_metrics(
+        record.log_belief,
+        np.asarray(record.responses).sum(-1),
+        record.observed,
+        trials.label,
+        trials.pose,
+        threshold,
+    )
