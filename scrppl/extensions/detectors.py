@@ -35,6 +35,7 @@ from scrppl.views import angular_distance
 __all__ = ["detector_expected_entropies", "choose_view_and_detector"]
 
 
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def detector_expected_entropies(
     key: jax.Array | None,
     models: Sequence[ResponseModel],

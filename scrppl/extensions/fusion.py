@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -400,6 +401,7 @@ def _sample_fused(key, models, belief, phi, e, s, n_samples):
     return jnp.stack(fs, axis=-1)
 
 
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def fused_expected_entropy(
     key: jax.Array | None,
     models: Sequence[ResponseModel],
@@ -458,6 +460,7 @@ def fused_expected_entropy(
     raise ValueError(f"unknown planner {planner!r}; expected 'quadrature' or 'sampled'")
 
 
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def fused_expected_entropies(
     key: jax.Array | None,
     models: Sequence[ResponseModel],

@@ -151,7 +151,7 @@ def two_step_expected_entropies(
     x = jnp.asarray(x, dtype)
     wq = jnp.asarray(w / math.sqrt(math.pi), dtype)
 
-    def per_first(first):
+    def value(first):
         v1 = views[first]
         mix = predictive_mixture(model, belief, v1[0], v1[1], v1[2])
         f1 = (mix.mean.ravel()[:, None] + jnp.sqrt(2.0 * mix.var.ravel())[:, None] * x).ravel()
@@ -172,6 +172,9 @@ def two_step_expected_entropies(
             f1,
         )
         return jnp.sum(jnp.where(wts > 0, wts * vals, 0.0))
+
+    def per_first(first):  # invalid first views are not evaluated (lax.map runs one branch)
+        return jax.lax.cond(valid[first], value, lambda _: jnp.asarray(jnp.inf, dtype), first)
 
     values = jax.lax.map(per_first, jnp.arange(views.shape[0]))
     return jnp.where(valid, values, jnp.inf)
@@ -226,7 +229,7 @@ def sampled_two_step_expected_entropies(
     k_outer, k_inner = jax.random.split(key)
     inner_keys = jax.random.split(k_inner, n_outer)
 
-    def per_first(first):
+    def value(first):
         v1 = views[first]
         mix = predictive_mixture(model, belief, v1[0], v1[1], v1[2])
         f1 = _sample_mixture(k_outer, mix, n_outer)
@@ -246,6 +249,10 @@ def sampled_two_step_expected_entropies(
             (inner_keys, f1),
         )
         return vals.mean()
+
+    def per_first(first):
+        inf = jnp.asarray(jnp.inf, model.mu.dtype)
+        return jax.lax.cond(valid[first], value, lambda _: inf, first)
 
     values = jax.lax.map(per_first, jnp.arange(views.shape[0]))
     return jnp.where(valid, values, jnp.inf)
