@@ -9,6 +9,19 @@
   paired with the single-detector trials of :mod:`scrppl.sim`.
 
 The motion-cost extension lives in :func:`scrppl.planning.choose_view` (``motion_cost``).
+
+A paired comparison on a response table (``models``: one response model per detector, ``tfs``: each
+detector's transform)::
+
+    from scrppl import extensions as X
+    from scrppl.sim import run_trials
+
+    trials = X.make_multi_trials(key, table, ["dpm", "bof", "sift"], "car", 160, transforms=tfs)
+    dpm = run_trials(key, models[0], X.single_detector_trials(trials, 0))   # one detector
+    fused = X.run_multi_trials(key, models, trials, policy="fuse")          # all detectors per view
+    chosen = X.run_multi_trials(key, models, trials, policy="choose", costs=[3.0, 1.0, 1.5],
+                                cost_weight=0.05)                           # one detector per step
+    X.multi_trial_metrics(fused, trials)["views_to_confidence"].mean()
 """
 
 from scrppl.extensions.detectors import choose_view_and_detector, detector_expected_entropies
