@@ -15,6 +15,8 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.belief` -- exact discrete filters over (class, pose);
 * :mod:`scrppl.planning` -- next-view planners (random, sampled / quadrature / plug-in expected entropy);
 * :mod:`scrppl.sim` -- the simulator, trial runner and experiment;
+* :mod:`scrppl.extensions` -- beyond the paper: two-step lookahead, choosing which detector to run,
+  fusing several detectors, and multi-detector trials;
 * :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib).
 """
 
@@ -31,6 +33,7 @@ _SUBMODULES = (
     "belief",
     "datasets",
     "detectors",
+    "extensions",
     "models",
     "planning",
     "plotting",
