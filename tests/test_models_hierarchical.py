@@ -1,5 +1,6 @@
 """Hierarchical viewpoint model: closed-form marginal, bases, prior predictive, parameter recovery."""
 
+import json
 import warnings
 
 import jax
@@ -7,10 +8,19 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
+from scrppl.models import transforms
 from scrppl.models.data import extract_view_data, make_view_data
+from scrppl.models.diagnostics import DiagnosticsWarning
 from scrppl.models.fit import fit_hierarchical
-from scrppl.models.hierarchical import fourier_basis, prior_predictive, sum_to_zero_basis
-from scrppl.models.marginal import instance_log_marginal
+from scrppl.models.hierarchical import (
+    choose_noncentered,
+    fourier_basis,
+    make_model,
+    model_args,
+    prior_predictive,
+    sum_to_zero_basis,
+)
+from scrppl.models.marginal import instance_log_marginal, instance_log_marginal_stats, view_stats
 from scrppl.models.mcmc import SamplerConfig
 from scrppl.models.predictive import to_response_model
 from scrppl.models.simulate import random_true_model, simulate_response_table
@@ -116,3 +126,137 @@ def test_parameter_recovery():
         assert model.mu.shape == (1600, 2, 8, 1, 1)
     rate = inside / total
     assert 0.75 <= rate <= 1.0, rate
+
+
+def test_marginal_from_sufficient_statistics_equals_the_dense_normal(rng):
+    n_inst, n_az, n_el, n_sc = 7, 8, 3, 2
+    z = rng.normal(1.0, 2.0, size=(n_inst, n_az, n_el, n_sc))
+    observed = rng.random(z.shape) > 0.2
+    o = np.array([0, 1, 0, 0, 1, 1, 0])
+    mu = rng.normal(size=(2, n_az, n_el, n_sc))
+    sigma = rng.uniform(0.3, 2.0, size=(2, n_az))
+    tau = np.array([0.5, 1.3])
+    offset = rng.normal(size=n_inst) * (o == 0)
+    got = np.asarray(
+        instance_log_marginal_stats(view_stats(z, observed, o), mu, sigma, tau, offset)
+    )
+    for i in range(n_inst):
+        sel = observed[i]
+        mean = (mu[o[i]] + offset[i])[sel]
+        sd = np.broadcast_to(sigma[o[i]][:, None, None], sel.shape)[sel]
+        cov = np.diag(sd**2) + tau[o[i]] ** 2
+        dense = stats.multivariate_normal(mean, cov).logpdf(z[i][sel])
+        np.testing.assert_allclose(got[i], dense, rtol=2e-5)
+
+
+def test_noise_floor_is_the_rounding_error_of_one_count():
+    step = transforms.apply("anscombe", 1.0) - transforms.apply("anscombe", 0.0)
+    assert transforms.resolution_sd("anscombe") == pytest.approx(step / np.sqrt(12))
+    assert transforms.resolution_sd("identity") == 0.0
+    with pytest.raises(ValueError, match="unknown response transform"):
+        transforms.resolution_sd("sqrt")
+
+
+def _potential_along_sigma(floor: float, log_sigmas) -> np.ndarray:
+    """Potential energy of identical responses as the noise sd shrinks (all else fixed)."""
+    from numpyro.infer.util import potential_energy
+
+    y = np.full((8, 8, 1, 1), 1.2247)  # zero counts on the Anscombe scale, from every view
+    y[:4] += 0.5
+    data = make_view_data(y, [1, 1, 1, 1, 0, 0, 0, 0])
+    args = model_args(data, loc=1.0, scale=1.0, floor=floor)
+    model = make_model(True, ())
+    out = []
+    for ls in log_sigmas:
+        params = {
+            "alpha": np.array([0.2247, 0.7247]),
+            "eta": np.array([1.0, 1.0]),
+            "coef": np.zeros((2, 7)),
+            "sigma_class": np.exp(np.array([ls, ls])),
+            "sigma_spread": np.array([0.5, 0.5]),
+            "log_sigma_contrast": np.zeros((2, 7)),
+            "instance_sd": np.array([1e-9, 1e-9]),
+        }
+        out.append(float(potential_energy(model, args, {}, _unconstrain(model, args, params))))
+    return np.array(out)
+
+
+def _unconstrain(model, args, params):
+    from numpyro.infer.util import unconstrain_fn
+
+    return unconstrain_fn(model, args, {}, params)
+
+
+def test_noise_floor_bounds_the_likelihood_of_identical_counts():
+    log_sigmas = [-2.0, -4.0, -6.0, -8.0]
+    without = _potential_along_sigma(0.0, log_sigmas)
+    assert np.all(np.diff(without) < -10)  # an unbounded spike: sigma -> 0 is ever more likely
+    floored = _potential_along_sigma(transforms.resolution_sd("anscombe"), log_sigmas)
+    # with the floor the likelihood no longer changes; only the prior on sigma pulls it back
+    assert np.all(np.diff(floored) > 0)
+
+
+def test_choose_noncentered_per_class():
+    def design(n_pos, n_neg, n_views):
+        o = np.r_[np.ones(n_pos, int), np.zeros(n_neg, int)]
+        y = np.zeros((n_pos + n_neg, 8, n_views, 1))
+        return make_view_data(y, o)
+
+    assert "coef" not in choose_noncentered(design(6, 30, 9))  # >= 50 responses per cell
+    assert choose_noncentered(design(3, 30, 9))[-1] == "coef[1]"  # thin positives only
+    assert choose_noncentered(design(3, 3, 1))[-1] == "coef"
+    with pytest.raises(ValueError, match="cannot reparameterise"):
+        make_model(True, ("coef[2]",))
+
+
+def test_partial_noncentring_keeps_the_prior(key):
+    from numpyro.infer import Predictive
+
+    data = make_view_data(np.zeros((4, 8, 1, 1)), [1, 1, 0, 0])
+    args = model_args(data, loc=0.0, scale=1.0)
+    k_harm = fourier_basis(8)[1]
+    for noncentered in ((), ("coef[1]",), ("coef",)):
+        draws = Predictive(make_model(True, noncentered), num_samples=4000)(key, *args)
+        scaled = draws["coef"] / (draws["eta"][:, :, None] / k_harm)  # standard normal a priori
+        np.testing.assert_allclose(scaled.std(axis=0), 1.0, atol=0.08)
+        np.testing.assert_allclose(scaled.mean(axis=0), 0.0, atol=0.08)
+
+
+def test_a_failed_fit_is_refitted_once_at_a_higher_acceptance_target(key, monkeypatch):
+    """The retry logic of fit_hierarchical, with the sampler replaced by prior draws."""
+    from numpyro.infer import Predictive
+
+    import scrppl.models.fit as fit_module
+
+    data = make_view_data(np.random.default_rng(0).normal(size=(6, 8, 1, 1)), [1, 1, 1, 0, 0, 0])
+    meta = {"detector": "dpm", "target": "c0", "transform": "identity"}
+    model = make_model(True, choose_noncentered(data))
+    prior = Predictive(model, num_samples=4 * 500)(key, *model_args(data))
+    calls = []
+
+    def fake_run_nuts(key, model, args, config, progress=True, desc=""):
+        calls.append(config.target_accept_prob)
+        samples = {k: np.asarray(v).reshape((4, 500) + v.shape[1:]) for k, v in prior.items()}
+        if len(calls) == 1:  # chains stuck in different places: R-hat fails
+            samples = {
+                k: v + np.arange(4.0).reshape((4, 1) + (1,) * (v.ndim - 2))
+                for k, v in samples.items()
+            }
+        stats = {
+            name: np.zeros((4, 500), dtype)
+            for name, dtype in (("diverging", bool), ("energy", float), ("n_steps", int))
+        }
+        stats["energy"] = np.random.default_rng(len(calls)).normal(size=(4, 500))
+        return samples, stats
+
+    monkeypatch.setattr(fit_module, "run_nuts", fake_run_nuts)
+    config = SamplerConfig(num_warmup=10, num_samples=500, num_chains=4)
+    tree = fit_hierarchical(key, data, meta, config, progress=False)
+    assert calls == [0.9, fit_module.RETRY_ACCEPT]
+    attempts = json.loads(tree.attrs["meta"])["attempts"]
+    assert [a["ok"] for a in attempts] == [False, True]
+    assert json.loads(tree.attrs["diagnostics"])["ok"]
+    calls.clear()
+    with pytest.warns(DiagnosticsWarning):  # without a retry the failure is reported
+        fit_hierarchical(key, data, meta, config, retry_accept=None, progress=False)
+    assert calls == [0.9]

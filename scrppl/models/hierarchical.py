@@ -54,15 +54,27 @@ Two likelihoods
 variables, no funnel. ``marginal=False`` is the plain latent-instance model with explicit ``u_i`` (kept
 for teaching, for the prior predictive and for the benchmark comparison).
 
+Noise floor
+-----------
+Counts are integers, so a (class, azimuth) cell in which every response is the same count (zero SIFT
+inliers from every view of a negative, say) has a Gaussian likelihood that grows without bound as its
+noise sd shrinks: on the default table two SIFT fits had every chain stuck on such a spike (R-hat
+infinite, ESS 4) and a third had a thousand divergences. The noise sd is therefore
+``sqrt(sigma_free^2 + floor^2)``, where ``floor`` is the rounding error of one count on the transformed
+scale (:func:`scrppl.models.transforms.resolution_sd`; 0.32 for Anscombe, 0 for real-valued DPM
+scores). ``sigma`` in the posterior and the predictive includes it.
+
 Parameterisation
 ----------------
-``make_model(noncentered=...)`` names the sites sampled non-centred (NumPyro ``LocScaleReparam(0)``).
-Measured (``benchmarks/bench_fit.py`` and the notes in :func:`choose_noncentered`): the noise-scale
-contrasts and category contrasts are non-centred always (their group sds can approach zero: the centred
-form formed a funnel and diverged); the azimuth coefficients ``coef`` are centred when every
-(class, azimuth) cell has many responses (72-view tables: no divergences, ~18 leapfrog steps per
-iteration, against ~57 steps and some divergences non-centred) and non-centred when the data are thin
-(8 views x 6 instances: the centred form diverged or stuck).
+``make_model(noncentered=...)`` names the sites sampled non-centred (NumPyro ``LocScaleReparam(0)``);
+``"coef[1]"`` non-centres one class's rows only (a ``LocScaleReparam`` with a per-class centring
+vector). Measured (``benchmarks/bench_fit.py`` and the notes in :func:`choose_noncentered`): the
+noise-scale contrasts and category contrasts are non-centred always (their group sds can approach zero:
+the centred form formed a funnel and diverged); the azimuth coefficients ``coef`` of a class are
+centred when each of its (azimuth) cells has many responses (the 27 negatives x 9 views of the default
+table: no divergences, ~25 leapfrog steps per iteration) and non-centred when its data are thin (the
+3 positives of a target: centred, a flat profile pulled ``eta`` towards zero and the funnel neck
+diverged, 34-84 divergences per fit).
 """
 
 from __future__ import annotations
@@ -80,7 +92,7 @@ from numpyro.infer import Predictive
 from numpyro.infer.reparam import LocScaleReparam
 
 from scrppl.models.data import ViewData
-from scrppl.models.marginal import instance_log_marginal
+from scrppl.models.marginal import instance_log_marginal, instance_log_marginal_stats, view_stats
 
 __all__ = [
     "fourier_basis",
@@ -113,12 +125,16 @@ FREE_PARAMETERS = (
 #: Sites that ``centered=False`` reparameterises (``u`` only exists in the latent-instance model).
 REPARAM_SITES = ("coef", "log_sigma_contrast", "category_contrast", "u")
 
+#: Sites with one row per class, which may be non-centred for one class only (``"coef[1]"``: the
+#: present class's azimuth coefficients).
+CLASS_SITES = ("coef", "log_sigma_contrast")
+
 #: Sites always sampled non-centred (see "Parameterisation" in the module docstring); ``coef`` joins
 #: them when the data are thin (:func:`choose_noncentered`).
 DEFAULT_NONCENTERED = ("log_sigma_contrast", "category_contrast", "u")
 
 #: Fewest responses per (class, azimuth) cell for which the azimuth coefficients are sampled centred.
-CENTERED_COEF_MIN_RESPONSES = 20
+CENTERED_COEF_MIN_RESPONSES = 50
 
 
 def fourier_basis(n_azimuth: int) -> tuple[np.ndarray, np.ndarray]:
@@ -157,7 +173,9 @@ def sum_to_zero_basis(n: int) -> np.ndarray:
     return q[:, 1:]
 
 
-def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = True):
+def viewpoint_model(
+    y, observed, o, neg_onehot, loc, scale, floor=0.0, stats=None, marginal: bool = True
+):
     """NumPyro model of one detector's responses for one target (see the module docstring).
 
     Parameters
@@ -173,6 +191,13 @@ def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = Tru
         ``(I, K)`` one-hot non-target category of each negative (zero rows for positives).
     loc, scale
         Standardisation constants (scalars) of the responses.
+    floor
+        Noise floor on the response scale (:func:`scrppl.models.transforms.resolution_sd`; 0 for
+        real-valued scores): the noise sd is ``sqrt(sigma_free^2 + floor^2)``.
+    stats
+        :func:`scrppl.models.marginal.view_stats` of the standardised responses (marginal model only):
+        the likelihood is then computed from them, which is several times cheaper per gradient than
+        from ``y`` (:func:`model_args` provides them).
     marginal
         Integrate the instance effects out in closed form (``True``) or sample them (``False``).
     """
@@ -199,7 +224,7 @@ def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = Tru
             "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
         )
         log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
-    sigma = jnp.exp(log_sigma)
+    sigma = jnp.sqrt(jnp.exp(2.0 * log_sigma) + (floor / scale) ** 2)
     tau = numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2]))
     offset = jnp.zeros(n_inst)
     if n_neg > 1:
@@ -213,15 +238,22 @@ def viewpoint_model(y, observed, o, neg_onehot, loc, scale, marginal: bool = Tru
     numpyro.deterministic("tau", scale * tau)
     numpyro.deterministic("kappa", scale * kappa)
 
-    m = mu[o] + offset[:, None, None, None]
-    sd = sigma[o][:, :, None, None]
+    # select each instance's class by arithmetic rather than by gathering with ``o``: the gather's
+    # gradient is a scatter, several times slower than this on CPU (and much slower under vmap)
+    present = jnp.asarray(o, dtype=mu.dtype)
+    m = mu[0] + present[:, None, None, None] * (mu[1] - mu[0]) + offset[:, None, None, None]
+    sd = (sigma[0] + present[:, None] * (sigma[1] - sigma[0]))[:, :, None, None]
+    tau_i = tau[0] + present * (tau[1] - tau[0])
     if marginal:
         if y is None:
             raise ValueError("the marginal model cannot generate responses; use marginal=False")
-        z = (y - loc) / scale
-        numpyro.factor("likelihood", instance_log_marginal(z, m, sd, tau[o], observed).sum())
+        if stats is not None:
+            ll = instance_log_marginal_stats(stats, mu, sigma, tau, offset)
+        else:
+            ll = instance_log_marginal((y - loc) / scale, m, sd, tau_i, observed)
+        numpyro.factor("likelihood", ll.sum())
     else:
-        u = numpyro.sample("u", dist.Normal(0.0, tau[o]))
+        u = numpyro.sample("u", dist.Normal(0.0, tau_i))
         z = None if y is None else (y - loc) / scale
         with numpyro.handlers.mask(mask=observed):
             z = numpyro.sample(
@@ -246,12 +278,27 @@ def make_model(marginal: bool = True, noncentered: tuple[str, ...] | None = None
         module docstring); ``()`` is the fully centred model.
     """
     noncentered = DEFAULT_NONCENTERED if noncentered is None else tuple(noncentered)
-    unknown = set(noncentered) - set(REPARAM_SITES)
-    if unknown:
-        raise ValueError(f"cannot reparameterise {sorted(unknown)}; choose from {REPARAM_SITES}")
+    config = {}
+    by_class: dict[str, list[int]] = {}
+    for name in noncentered:
+        site, _, cls = name.partition("[")
+        if name in REPARAM_SITES:
+            config[name] = LocScaleReparam(0)
+        elif site in CLASS_SITES and cls in ("0]", "1]"):
+            by_class.setdefault(site, []).append(int(cls[0]))
+        else:
+            raise ValueError(
+                f"cannot reparameterise {name!r}; choose from {REPARAM_SITES} or one class of "
+                f"{CLASS_SITES}, e.g. 'coef[1]'"
+            )
+    for site, classes in by_class.items():
+        if site not in config:  # one class's values non-centred, the other's centred
+            centered = np.ones((2, 1))
+            centered[classes] = 0.0
+            config[site] = LocScaleReparam(centered)
     fn = functools.partial(viewpoint_model, marginal=marginal)
-    if noncentered:
-        fn = reparam(fn, config={name: LocScaleReparam(0) for name in noncentered})
+    if config:
+        fn = reparam(fn, config=config)
     return fn
 
 
@@ -259,17 +306,22 @@ def choose_noncentered(data: ViewData) -> tuple[str, ...]:
     """The parameterisation for ``data``, by the rule measured in ``benchmarks/bench_fit.py``.
 
     The noise-scale and category contrasts (whose group-level sds may be near zero) and latent instance
-    effects are always non-centred. The azimuth coefficients ``coef`` are centred when every
-    (class, azimuth) cell has at least :data:`CENTERED_COEF_MIN_RESPONSES` responses (the likelihood
-    then dominates their prior; the non-centred form needed 3x longer trajectories and diverged), and
-    non-centred otherwise (with a few responses per cell the centred form diverged or got stuck).
+    effects are always non-centred. The azimuth coefficients of a class are centred when each of its
+    azimuth cells has at least :data:`CENTERED_COEF_MIN_RESPONSES` responses (the likelihood then
+    dominates their prior; the non-centred form needed 3x longer trajectories and diverged), and
+    non-centred otherwise (with a few responses per cell the centred form diverged or got stuck):
+    ``"coef"`` when both classes are thin, ``"coef[0]"`` or ``"coef[1]"`` when one is.
     """
     obs = np.asarray(data.observed)
     o = np.asarray(data.o)
-    counts = [obs[o == cls].sum(axis=(0, 2, 3)).min() for cls in (0, 1)]
-    if min(counts) >= CENTERED_COEF_MIN_RESPONSES:
-        return DEFAULT_NONCENTERED
-    return DEFAULT_NONCENTERED + ("coef",)
+    thin = [
+        cls
+        for cls in (0, 1)
+        if obs[o == cls].sum(axis=(0, 2, 3)).min() < CENTERED_COEF_MIN_RESPONSES
+    ]
+    if len(thin) == 2:
+        return DEFAULT_NONCENTERED + ("coef",)
+    return DEFAULT_NONCENTERED + tuple(f"coef[{cls}]" for cls in thin)
 
 
 def standardisation(data: ViewData) -> tuple[float, float]:
@@ -279,17 +331,27 @@ def standardisation(data: ViewData) -> tuple[float, float]:
     return float(vals.mean()), sd if sd > 0 else 1.0
 
 
-def model_args(data: ViewData, loc: float | None = None, scale: float | None = None) -> tuple:
-    """Positional arguments of the model for ``data`` (as JAX arrays)."""
+def model_args(
+    data: ViewData, loc: float | None = None, scale: float | None = None, floor: float = 0.0
+) -> tuple:
+    """Positional arguments of the model for ``data`` (as JAX arrays).
+
+    ``floor`` is the noise floor on the response scale (:func:`scrppl.models.transforms.resolution_sd`);
+    the last argument is the :func:`~scrppl.models.marginal.view_stats` of the standardised responses.
+    """
     if loc is None or scale is None:
         loc, scale = standardisation(data)
+    dtype = jnp.asarray(data.y).dtype
+    z = (np.asarray(data.y) - loc) / scale
     return (
         jnp.asarray(data.y),
         jnp.asarray(data.observed),
         jnp.asarray(data.o),
         jnp.asarray(data.neg_onehot),
-        jnp.asarray(loc, dtype=jnp.asarray(data.y).dtype),
-        jnp.asarray(scale, dtype=jnp.asarray(data.y).dtype),
+        jnp.asarray(loc, dtype=dtype),
+        jnp.asarray(scale, dtype=dtype),
+        jnp.asarray(floor, dtype=dtype),
+        view_stats(z, data.observed, data.o, dtype=dtype),
     )
 
 
@@ -299,6 +361,7 @@ def prior_predictive(
     n_draws: int = 500,
     loc: float | None = None,
     scale: float | None = None,
+    floor: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Draws from the prior predictive: parameters and simulated responses for ``data``'s design.
 
@@ -313,13 +376,15 @@ def prior_predictive(
         Number of prior draws.
     loc, scale
         Standardisation constants (default: :func:`standardisation` of ``data``).
+    floor
+        Noise floor on the response scale (see :func:`viewpoint_model`).
 
     Returns
     -------
     dict with ``mu (n, 2, A, E, S)``, ``sigma (n, 2, A)``, ``tau (n, 2)``, ``kappa (n,)`` and
     ``y (n, I, A, E, S)`` (NaN at unobserved views), all on the response scale.
     """
-    args = list(model_args(data, loc, scale))
+    args = list(model_args(data, loc, scale, floor))
     args[0] = None
     pred = Predictive(make_model(marginal=False), num_samples=n_draws)(key, *args)
     out = {k: np.asarray(pred[k]) for k in ("mu", "sigma", "tau", "kappa", "y")}

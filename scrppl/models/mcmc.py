@@ -136,9 +136,65 @@ def _compiled(
 
         return jax.lax.scan(body, state, None, length=chunk)
 
+    # the acceptance target must be a constant: NumPyro's kernel keeps it in a closure shared by
+    # ``init`` and ``step``, so a different target compiles anew
     init = jax.pmap(jax.vmap(init_one, in_axes=(0, None)), in_axes=(0, None))
     step = jax.pmap(jax.vmap(step_one, in_axes=(0, None)), in_axes=(0, None))
     return _Compiled(init, step)
+
+
+def _device_split(n_chains: int) -> tuple[int, int]:
+    """``(devices, chains per device)``: the most host devices that divide the chains evenly."""
+    n_dev = max(
+        d for d in range(1, min(n_chains, jax.local_device_count()) + 1) if n_chains % d == 0
+    )
+    return n_dev, n_chains // n_dev
+
+
+def _drive(compiled, keys, args, config: SamplerConfig, n_chains: int, progress: bool, desc: str):
+    """Run ``compiled`` from ``keys`` (``(devices, per_device)``); samples ``(n_chains, draws, ...)``."""
+    from tqdm.auto import tqdm
+
+    state = compiled.init(keys, args)
+    total = config.num_warmup + config.num_samples
+    n_chunks = -(-total // config.chunk)
+    kept_params, kept_stats = [], []
+    with tqdm(total=n_chunks * config.chunk, desc=desc, disable=not progress, leave=False) as bar:
+        for c in range(n_chunks):
+            state, (params, stats) = compiled.step(state, args)
+            start = c * config.chunk
+            lo = max(config.num_warmup - start, 0)
+            hi = min(total - start, config.chunk)
+            if hi > lo:
+                kept_params.append(
+                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), params)
+                )
+                kept_stats.append(
+                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), stats)
+                )
+            bar.update(config.chunk)
+
+    def merge(parts):
+        out = jax.tree.map(lambda *xs: np.concatenate(xs, axis=2), *parts)
+        return {k: v.reshape((n_chains,) + v.shape[2:]) for k, v in out.items()}
+
+    return merge(kept_params), merge(kept_stats)
+
+
+def _compile_for(model, args, config: SamplerConfig, n_chains: int):
+    n_dev, per_device = _device_split(n_chains)
+    compiled = _compiled(
+        model,
+        latent_site_shapes(model, args),
+        n_dev,
+        per_device,
+        config.num_warmup,
+        float(config.target_accept_prob),
+        config.max_tree_depth,
+        config.chunk,
+        bool(config.dense_mass),
+    )
+    return compiled, n_dev, per_device
 
 
 def run_nuts(
@@ -175,48 +231,6 @@ def run_nuts(
         ``diverging``, ``energy``, ``n_steps``, ``acceptance_rate``, ``step_size``, ``lp``, each
         ``(chains, draws)``.
     """
-    n_dev = max(
-        d
-        for d in range(1, min(config.num_chains, jax.local_device_count()) + 1)
-        if config.num_chains % d == 0
-    )
-    per_device = config.num_chains // n_dev
-    shapes = latent_site_shapes(model, args)
-    compiled = _compiled(
-        model,
-        shapes,
-        n_dev,
-        per_device,
-        config.num_warmup,
-        float(config.target_accept_prob),
-        config.max_tree_depth,
-        config.chunk,
-        bool(config.dense_mass),
-    )
+    compiled, n_dev, per_device = _compile_for(model, args, config, config.num_chains)
     keys = jax.random.split(key, config.num_chains).reshape(n_dev, per_device)
-    state = compiled.init(keys, args)
-    total = config.num_warmup + config.num_samples
-    n_chunks = -(-total // config.chunk)
-    kept_params, kept_stats = [], []
-    from tqdm.auto import tqdm
-
-    with tqdm(total=n_chunks * config.chunk, desc=desc, disable=not progress, leave=False) as bar:
-        for c in range(n_chunks):
-            state, (params, stats) = compiled.step(state, args)
-            start = c * config.chunk
-            lo = max(config.num_warmup - start, 0)
-            hi = min(total - start, config.chunk)
-            if hi > lo:
-                kept_params.append(
-                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), params)
-                )
-                kept_stats.append(
-                    jax.tree.map(lambda x, lo=lo, hi=hi: np.asarray(x[:, :, lo:hi]), stats)
-                )
-            bar.update(config.chunk)
-
-    def merge(parts):
-        out = jax.tree.map(lambda *xs: np.concatenate(xs, axis=2), *parts)
-        return {k: v.reshape((config.num_chains,) + v.shape[2:]) for k, v in out.items()}
-
-    return merge(kept_params), merge(kept_stats)
+    return _drive(compiled, keys, args, config, config.num_chains, progress, desc)

@@ -26,7 +26,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["TRANSFORMS", "DETECTOR_TRANSFORMS", "apply", "inverse", "default_transform"]
+__all__ = [
+    "TRANSFORMS",
+    "DETECTOR_TRANSFORMS",
+    "RESOLUTION_SD",
+    "apply",
+    "inverse",
+    "default_transform",
+    "resolution_sd",
+]
 
 
 def _check_counts(name: str, x: np.ndarray) -> None:
@@ -59,6 +67,18 @@ TRANSFORMS: dict[
     "identity": (lambda x: np.array(x, dtype=np.float64), lambda f: np.array(f, dtype=np.float64)),
     "anscombe": (_anscombe, _anscombe_inverse),
     "log1p": (_log1p, lambda f: np.expm1(np.asarray(f, dtype=np.float64))),
+}
+
+#: Rounding error of each transform's responses (sd on the transformed scale), the viewpoint model's noise
+#: floor. Counts are integers: read as a continuous response rounded to the nearest count, the rounding
+#: error at the coarsest step of the transformed grid (the step from 0 to 1 count) is uniform with sd
+#: ``step / sqrt(12)``. Without a floor, a cell of identical counts (zero SIFT inliers from every view of
+#: an azimuth, common for negatives) has an unbounded Gaussian likelihood as its noise sd goes to zero,
+#: and NUTS collapses its step size on that spike. Real-valued scores have no floor.
+RESOLUTION_SD: dict[str, float] = {
+    "identity": 0.0,
+    "anscombe": float(2.0 * (np.sqrt(1.375) - np.sqrt(0.375)) / np.sqrt(12.0)),
+    "log1p": float(np.log(2.0) / np.sqrt(12.0)),
 }
 
 #: Detector family -> transform name (matched on the lower-cased detector name's prefix).
@@ -112,3 +132,9 @@ def default_transform(detector: str) -> str:
         if key.startswith(prefix):
             return name
     return "identity"
+
+
+def resolution_sd(name: str) -> float:
+    """The noise floor of a transform's responses (:data:`RESOLUTION_SD`), on the transformed scale."""
+    _lookup(name)
+    return RESOLUTION_SD.get(name, 0.0)
