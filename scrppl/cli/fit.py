@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
 from scrppl.cli._common import add_common
 
-#: Chains for both profiles; host devices are set to this many before JAX initialises.
+#: Chains for both profiles (on one host device per core, up to one per chain).
 N_CHAINS = 4
 #: NUTS settings per profile: (warm-up, kept draws per chain).
 PROFILE_DRAWS = {"quick": (400, 400), "full": (500, 1000)}
@@ -45,8 +46,12 @@ def register(subparsers) -> None:
     )
     p.add_argument("--force", action="store_true", help="refit even if the models are current")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
-    p.add_argument("--detectors", nargs="+", default=None, help="only these detectors")
-    p.add_argument("--targets", nargs="+", default=None, help="only these targets")
+    p.add_argument(
+        "--detectors", default=None, help="comma-separated detectors to fit (default: all)"
+    )
+    p.add_argument(
+        "--targets", default=None, help="comma-separated target categories (default: all)"
+    )
     p.add_argument(
         "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"
     )
@@ -60,9 +65,10 @@ def _configure_host_devices(n: int) -> None:
     numpyro.set_host_device_count(n)
 
 
-def _select(requested, available, axis):
-    if requested is None:
+def _select(requested: str | None, available, axis):
+    if requested in (None, "", "all"):
         return list(available)
+    requested = [x.strip() for x in requested.split(",") if x.strip()]
     missing = [x for x in requested if x not in available]
     if missing:
         raise ValueError(f"{axis}s {missing} are not in the response table ({list(available)})")
@@ -76,7 +82,9 @@ def _figure_targets(targets: list[str]) -> list[str]:
 
 def handler(args: argparse.Namespace) -> int:
     """Run ``scrppl fit``; returns the exit status."""
-    _configure_host_devices(N_CHAINS)
+    # one host device per core, up to one per chain (chains beyond that share a device by vmap;
+    # more devices than cores only adds contention -- measured in benchmarks/bench_fit.py)
+    _configure_host_devices(max(1, min(N_CHAINS, os.cpu_count() or 1)))
     import jax
     import pandas as pd
     from tqdm.auto import tqdm
