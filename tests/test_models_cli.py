@@ -9,7 +9,8 @@ import pytest
 
 from scrppl.cli import main
 from scrppl.models import diagnostics as diag_module
-from scrppl.models.io import load_response_model
+from scrppl.models.fit import MODEL_VERSION
+from scrppl.models.io import load_posterior, load_response_model, save_posterior
 from scrppl.models.simulate import random_true_model, simulate_response_table
 from scrppl.responses import save_response_table
 from tests.test_models_hierarchical import RECOVERY_GRID
@@ -54,6 +55,16 @@ def test_fit_command_writes_models_diagnostics_heldout_and_figures(out, capsys):
     stamp = (out / "models" / "hierarchical-dpm-c0.nc").stat().st_mtime_ns
     assert main(args + ["--no-figures"]) == 0
     assert (out / "models" / "hierarchical-dpm-c0.nc").stat().st_mtime_ns == stamp
+
+    # ... unless they were fitted by another version of the model
+    path = out / "models" / "hierarchical-dpm-c0.nc"
+    tree = load_posterior(path)
+    tree.attrs["meta"] = json.dumps(dict(json.loads(tree.attrs["meta"]), model_version=1))
+    save_posterior(path, tree)
+    stamp = path.stat().st_mtime_ns
+    assert main(args + ["--no-figures", "--targets", "c0"]) == 0
+    assert path.stat().st_mtime_ns != stamp
+    assert json.loads(load_posterior(path).attrs["meta"])["model_version"] == MODEL_VERSION
 
 
 def test_fit_command_fails_on_bad_diagnostics_unless_accepted(out, monkeypatch, capsys):

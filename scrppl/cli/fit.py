@@ -93,7 +93,7 @@ def handler(args: argparse.Namespace) -> int:
     from scrppl.models import transforms
     from scrppl.models.data import extract_view_data
     from scrppl.models.evaluate import evaluate_models
-    from scrppl.models.fit import fit_hierarchical
+    from scrppl.models.fit import MODEL_VERSION, fit_hierarchical
     from scrppl.models.gaussian import fit_gaussian
     from scrppl.models.io import (
         load_posterior,
@@ -133,9 +133,13 @@ def handler(args: argparse.Namespace) -> int:
         if not current(gpath):
             g, n_obs = fit_gaussian(data)
             save_gaussian(gpath, g, n_obs, meta)
-        if current(hpath):
-            tree = load_posterior(hpath)
-        else:
+        tree = load_posterior(hpath) if current(hpath) else None
+        if (
+            tree is not None
+            and json.loads(tree.attrs["meta"]).get("model_version") != MODEL_VERSION
+        ):
+            tree = None  # fitted by another version of the model
+        if tree is None:
             tree = fit_hierarchical(
                 jax.random.fold_in(key, job), data, meta, config, progress=args.progress, warn=False
             )  # reported below

@@ -27,7 +27,11 @@ from scrppl.models.hierarchical import (
 )
 from scrppl.models.mcmc import DEFAULT_SAMPLER, SamplerConfig, run_nuts
 
-__all__ = ["fit_hierarchical", "DIMS", "RETRY_ACCEPT"]
+__all__ = ["fit_hierarchical", "DIMS", "RETRY_ACCEPT", "MODEL_VERSION"]
+
+#: Version of the hierarchical model, saved with every fit; ``scrppl fit`` refits a saved model of
+#: another version (2: noise floor for counts, per-class parameterisation).
+MODEL_VERSION = 2
 
 #: Acceptance target of the second attempt of a fit that failed its diagnostics. On the default table
 #: 2-4 of the 30 fits had 1-11 divergences at 0.9 (which seed decides); at 0.99 they had none.
@@ -63,6 +67,7 @@ def _prepare(data: ViewData, meta: dict, marginal: bool, noncentered):
     record = {k: v for k, v in meta.items() if k not in ("instance_category", "instance_index")}
     record.update(
         kind="hierarchical",
+        model_version=MODEL_VERSION,
         marginal=bool(marginal),
         noncentered=list(noncentered),
         loc=loc,
