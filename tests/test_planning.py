@@ -114,6 +114,64 @@ def test_posterior_entropy_matches_filter_update(rng):
                 np.testing.assert_allclose(got, want, atol=2e-5)
 
 
+def test_planner_draws_are_jax_random_numbers(key):
+    # the sampled planner evaluates the Threefry hash itself; the numbers must be jax.random's own
+    raw = jax.random.PRNGKey(3)
+    for k in (key, jax.random.fold_in(key, 11), raw):
+        k1, k2 = jax.random.split(k)
+        want = (jax.random.uniform(k1, (300,)), jax.random.normal(k2, (300,)))
+        for got in (
+            P._draws(k, 300, jnp.float32),
+            jax.jit(P._draws, static_argnums=(1, 2))(k, 300, jnp.float32),
+        ):
+            np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(want[0]))
+            np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(want[1]))
+    keys = jax.random.split(key, 4)
+    u, eps = jax.vmap(lambda k: P._draws(k, 64, jnp.float32))(keys)
+    for i in range(4):
+        k1, k2 = jax.random.split(keys[i])
+        np.testing.assert_array_equal(np.asarray(u[i]), np.asarray(jax.random.uniform(k1, (64,))))
+        np.testing.assert_array_equal(np.asarray(eps[i]), np.asarray(jax.random.normal(k2, (64,))))
+
+
+def test_fast_exp2_against_numpy():
+    x = np.concatenate([np.linspace(-126.0, 127.0, 200001), [0.0, 0.5, -0.5, 1e-8]]).astype(
+        np.float32
+    )
+    got = np.asarray(P._exp2(jnp.asarray(x)), np.float64)
+    want = np.exp2(x.astype(np.float64))
+    assert np.max(np.abs(got / want - 1.0)) < 3e-7
+    assert np.all(np.asarray(P._exp2(jnp.array([-128.0, -200.0, -1e30]))) == 0.0)
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_sampled_kernel_equals_entropy_of_the_sampled_responses(rng, key, kind):
+    # the fused kernel against the plain formula (posterior_entropy) on the very same responses, for
+    # several draws, concentrated beliefs and impossible states (zero prior), and every objective
+    for n, k_updates in ((1, 0), (3, 4), (1, 40), (3, 30)):
+        model = random_model(rng, n=n, a=8, e=1, s=2)
+        prior = rng.uniform(size=(2, 8))
+        prior[rng.uniform(size=(2, 8)) < 0.3] = 0.0
+        prior[0, 0] = 1.0
+        b = B.init_belief(kind, model, prior)
+        for _ in range(k_updates):
+            b = B.update(model, b, jnp.float32(3 * rng.normal()), int(rng.integers(8)), 0, 1)
+        views = jnp.asarray([[phi, 0, phi % 2] for phi in range(8)])
+        mixtures = P.candidate_mixtures(model, b, views)
+        for objective in B.OBJECTIVES:
+            h = np.asarray(P.expected_entropies(key, model, b, views, "sampled", objective, 256))
+            assert np.all(np.isfinite(h))
+            f = jax.vmap(lambda m: P._sample_responses(key, m, 256))(mixtures)
+            want = jax.vmap(lambda m, f, o=objective: P.posterior_entropy(m, f, o).mean())(
+                mixtures, f
+            )
+            one = jax.vmap(lambda m, o=objective: P.sampled_expected_entropy(key, m, 256, o))(
+                mixtures
+            )
+            np.testing.assert_allclose(h, np.asarray(want), atol=2e-6)
+            np.testing.assert_allclose(np.asarray(one), np.asarray(want), atol=2e-6)
+
+
 def test_plug_in_is_biased(rng):
     # two equally likely classes with well separated responses: the expected response lies between
     # them, where it is ambiguous, so the plug-in entropy is far above the true expected entropy.
