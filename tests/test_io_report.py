@@ -88,6 +88,10 @@ def test_report_lists_numbers_and_figures(tmp_path):
             "divergences": 2,
             "ebfmi": [0.8],
             "failures": ["R-hat > 1.01: a (1.020)"],
+            "attempts": [
+                {"target_accept_prob": 0.9, "ok": False, "divergences": 3},
+                {"target_accept_prob": 0.99, "ok": False, "divergences": 2},
+            ],
         },
     }
     (tmp_path / "models" / "diagnostics.json").write_text(json.dumps(diag))
@@ -97,7 +101,7 @@ def test_report_lists_numbers_and_figures(tmp_path):
         "| car | paper | gaussian+naive_bayes | 2.5 | 3.25 | -0.750 [-1.000, -0.500] | 0.04 |"
         in text
     )
-    assert "0 of 1 fits pass" in text and "| dpm/car | NO | 1.02 | 300 | 250 | 2 |" in text
+    assert "0 of 1 fits pass" in text and "| dpm/car | NO | 1.02 | 300 | 250 | 2 | 0.8 | 0.9 -> 0.99 |" in text
     assert text.index("fig5-car") < text.index("other")  # paper figures first
     assert "--profile quick --seed 1" in text
 

@@ -145,7 +145,9 @@ def handler(args: argparse.Namespace) -> int:
             )  # reported below
             save_posterior(hpath, tree)
         report = json.loads(tree.attrs["diagnostics"])
-        report["noncentered"] = json.loads(tree.attrs["meta"]).get("noncentered")
+        fit_meta = json.loads(tree.attrs["meta"])
+        report["noncentered"] = fit_meta.get("noncentered")
+        report["attempts"] = fit_meta.get("attempts", [])
         diagnostics[f"{det}/{tgt}"] = report
         gauss, _ = load_response_model(models_dir, "gaussian", det, tgt)
         hier = to_response_model(tree)
