@@ -181,6 +181,15 @@ def test_runner_records_are_consistent(table, model, key, planner):
         np.testing.assert_allclose(
             np.asarray(phased.log_belief), np.asarray(rec.log_belief), atol=1e-5
         )
+        # nor on how the batch is cut: several chunks (the last one padded), vectorised pairs, one
+        # device instead of two
+        cut = sim.run_trials(
+            key, model, trials, n_samples=64, chunk_size=4, batch_size=2, devices=1
+        )
+        np.testing.assert_array_equal(np.asarray(cut.views), views)
+        np.testing.assert_allclose(
+            np.asarray(cut.log_belief), np.asarray(rec.log_belief), atol=1e-5
+        )
     if planner == "random":
         # nor on how many CPU devices the trials are split over
         one = sim.run_trials(key, model, trials, planner=planner, chunk_size=CHUNK, devices=1)
