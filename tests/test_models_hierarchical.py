@@ -252,11 +252,11 @@ def test_a_failed_fit_is_refitted_once_at_a_higher_acceptance_target(key, monkey
     monkeypatch.setattr(fit_module, "run_nuts", fake_run_nuts)
     config = SamplerConfig(num_warmup=10, num_samples=500, num_chains=4)
     tree = fit_hierarchical(key, data, meta, config, progress=False)
-    assert calls == [0.9, fit_module.RETRY_ACCEPT]
+    assert calls == [config.target_accept_prob, fit_module.RETRY_ACCEPT]
     attempts = json.loads(tree.attrs["meta"])["attempts"]
     assert [a["ok"] for a in attempts] == [False, True]
     assert json.loads(tree.attrs["diagnostics"])["ok"]
     calls.clear()
     with pytest.warns(DiagnosticsWarning):  # without a retry the failure is reported
         fit_hierarchical(key, data, meta, config, retry_accept=None, progress=False)
-    assert calls == [0.9]
+    assert calls == [config.target_accept_prob]
