@@ -336,9 +336,10 @@ def _sampled_entropies(u, eps, log_weight, mean, var, objective: str) -> jax.Arr
     exponential), raised where needed to at most :data:`_MAX_SHIFT` nats below ``max_j c[j]``, which
     bounds every exponent above. So there is one exponential per component, sample and candidate and
     no pass for a maximum. The drawn components' parameters are whole rows of a ``(K, 3, C)`` table,
-    gathered once; then the groups are visited by a ``scan`` whose body is elementwise over ``(C, M)``
-    (samples contiguous): nothing of size ``(K, C, M)`` is in memory and the loop stays in cache. For
-    the joint objective with one draw, ``log2 q[g]`` is the exponent itself (no logarithm).
+    gathered once; then the groups are visited by a ``scan``, and the members of a group summed by an
+    inner ``scan``, each step one fused elementwise loop over ``(C, M)`` (samples contiguous): nothing
+    of size ``(K, C, M)`` is in memory and the work stays in the first-level cache. For the joint
+    objective with one draw, ``log2 q[g]`` is the exponent itself (no logarithm).
 
     Returns ``(C,)`` expected entropies in nats.
     """
@@ -364,15 +365,22 @@ def _sampled_entropies(u, eps, log_weight, mean, var, objective: str) -> jax.Arr
     direct = objective == "joint" and n == 1
     exp2 = _exp2 if mean.dtype == jnp.float32 else jnp.exp2
 
+    def exponent(mean, a, c):  # (C, 1) constants of one component -> (C, M) exponents, in bits
+        return c - ref + a * (f - mean) ** 2
+
+    def add_member(q, x):
+        return q + exp2(exponent(*x)), None
+
     def body(carry, x):
         z, t = carry
-        mean, a, c = x
-        d = c - ref + a * (f - mean) ** 2  # (R, C, M), in bits
-        if direct:
+        if x[0].shape[0] == 1:  # one component in the group
+            d = exponent(*(v[0] for v in x))
             # materialised once: otherwise XLA fuses (and so repeats) it into both accumulations
-            q = jax.lax.optimization_barrier(exp2(d[0]))
-            return (z + q, t + q * d[0]), None
-        q = jax.lax.optimization_barrier(exp2(d).sum(axis=0))
+            q = jax.lax.optimization_barrier(exp2(d))
+            if direct:
+                return (z + q, t + q * d), None
+        else:  # members summed one at a time: every step is one fused loop over (C, M)
+            q, _ = jax.lax.scan(add_member, jnp.zeros_like(f), x)
         qlogq = jnp.where(q > 0, q * jnp.log2(jnp.where(q > 0, q, 1.0)), 0.0)
         return (z + q, t + qlogq), None
 
