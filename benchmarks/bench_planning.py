@@ -208,7 +208,7 @@ def main() -> int:
         t0 = time.perf_counter()
         jax.block_until_ready(run())
         first = time.perf_counter() - t0
-        med, best = timeit(run, repeat=3 if n > 1000 else 7)
+        med, best = timeit(run, repeat=3 if n > 1000 else 21)
         batched[str(n)] = {
             "trials_per_second": n / med,
             "best_trials_per_second": n / best,
@@ -227,7 +227,7 @@ def main() -> int:
         return a.log_belief, b.log_belief
 
     jax.block_until_ready(paper())
-    med, best = timeit(paper, repeat=7)
+    med, best = timeit(paper, repeat=15)
     results["paper_experiment_160x2_seconds"] = {"median": med, "min": best, "target": 0.25}
     results["load_average_end"] = os.getloadavg()
     print(json.dumps(results, indent=2))
