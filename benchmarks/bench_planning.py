@@ -15,7 +15,9 @@ The machine's load average is recorded with the numbers: other processes on a 2-
 every figure here, so the file is only written when the 1-minute load average is below 0.7 at the
 start (``--force`` writes it anyway). Every figure is after compilation, in steady state: the median
 of repeats. The single decision is the public ``choose_view`` with every input an argument (nothing
-folded into the compiled code); the latency of one blocking call is recorded beside it.
+folded into the compiled code); the latency of one blocking call is recorded beside it, with JAX's
+default asynchronous CPU dispatch (the computation runs on a worker thread) and, in a separate
+process, with ``jax_cpu_enable_async_dispatch`` off (it runs in the calling thread).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -109,7 +112,39 @@ def timeit(fn, repeat, inner=1):
     return float(np.median(times)), float(np.min(times))
 
 
+def decision_inputs():
+    """The single decision's inputs: model, key, belief after one response, masks, current view."""
+    model = make_model()
+    key = jax.random.key(0)
+    belief = B.naive_bayes_update(model, B.naive_bayes_init(model), jnp.float32(1.0), 2, 0, 0)
+    visited = jnp.zeros((A, E, S), bool).at[2, 0, 0].set(True)
+    avail = jnp.ones((A, E, S), bool)
+    current = jnp.array([2, 0, 0])
+    return model, key, belief, visited, avail, current
+
+
+def decision_latency(n_calls: int = 500) -> float:
+    """Median wall time (us) of one blocking ``choose_view`` call (call, then wait for the result)."""
+    model, key, belief, visited, avail, current = decision_inputs()
+
+    def decide():
+        return P.choose_view(key, model, belief, current, visited, avail, n_samples=M)[0]
+
+    decide().block_until_ready()
+    latency = []
+    for _ in range(n_calls):
+        t0 = time.perf_counter()
+        decide().block_until_ready()
+        latency.append(time.perf_counter() - t0)
+    return float(np.median(latency)) * 1e6
+
+
 def main() -> int:
+    if "--latency-sync-dispatch" in sys.argv[1:]:
+        # JAX runs CPU computations on a worker thread by default; this runs them in the caller
+        jax.config.update("jax_cpu_enable_async_dispatch", False)
+        print(decision_latency())
+        return 0
     results = {
         "python": sys.version.split()[0],
         "jax": jax.__version__,
@@ -120,12 +155,7 @@ def main() -> int:
         "dtype": "float32",
         "settings": {"candidates": A, "samples_M": M, "states": 2 * A, "draws": 1},
     }
-    model = make_model()
-    key = jax.random.key(0)
-    belief = B.naive_bayes_update(model, B.naive_bayes_init(model), jnp.float32(1.0), 2, 0, 0)
-    visited = jnp.zeros((A, E, S), bool).at[2, 0, 0].set(True)
-    avail = jnp.ones((A, E, S), bool)
-    current = jnp.array([2, 0, 0])
+    model, key, belief, visited, avail, current = decision_inputs()
 
     # -- correctness: JAX and NumPy give the same expected entropies on the same draws ----------------
     rng = np.random.default_rng(1)
@@ -169,17 +199,19 @@ def main() -> int:
 
     decide().block_until_ready()
     med, best = timeit(decide, repeat=15, inner=200)
-    latency = []
-    for _ in range(500):
-        t0 = time.perf_counter()
-        decide().block_until_ready()
-        latency.append(time.perf_counter() - t0)
+    sync = subprocess.run(
+        [sys.executable, __file__, "--latency-sync-dispatch"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     results["decision_single_trial_us"] = {
         "median": med * 1e6,
         "min": best * 1e6,
         "target": 100.0,
         "how": "200 calls back to back per repeat, 15 repeats",
-        "latency_one_blocking_call_median": float(np.median(latency)) * 1e6,
+        "latency_one_blocking_call_median": decision_latency(),
+        "latency_one_blocking_call_median_sync_dispatch": float(sync.stdout.split()[-1]),
     }
     np_med, np_best = timeit(
         lambda: numpy_decision(
