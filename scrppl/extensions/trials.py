@@ -47,9 +47,9 @@ from scrppl.extensions.fusion import (
     fused_update,
 )
 from scrppl.models.response import ResponseModel, check_response_model
-from scrppl.responses import table_grid, validate_response_table
+from scrppl.responses import validate_response_table
 from scrppl.sim import metrics as M
-from scrppl.sim.simulator import Trials, robot_frame
+from scrppl.sim.simulator import Trials, draw_trials, robot_frame, transformed_scores
 from scrppl.views import angular_distance
 
 __all__ = [
@@ -179,52 +179,25 @@ def make_multi_trials(
     transforms = [None] * len(detectors) if transforms is None else list(transforms)
     if len(transforms) != len(detectors):
         raise ValueError(f"{len(detectors)} detectors but {len(transforms)} transforms")
-    scores = []
-    for d, tf in zip(detectors, transforms, strict=True):
-        raw = table["score"].sel(detector=d, target=target).values  # (C, I, A, E, S)
-        score = np.asarray(tf(raw) if tf is not None else raw, dtype=np.float64)
-        if score.shape != raw.shape:
-            raise ValueError(f"transform of {d!r} changed the shape: {raw.shape} -> {score.shape}")
-        if np.isinf(score).any() or (np.isnan(score) & ~np.isnan(raw)).any():
-            raise ValueError(f"transform of {d!r} produced non-finite responses from finite scores")
-        scores.append(score)
-    score = np.stack(scores, axis=2)  # (C, I, D, A, E, S)
-    n_a = table_grid(table).n_azimuth
+    score = np.stack(
+        [
+            transformed_scores(table, d, target, tf)
+            for d, tf in zip(detectors, transforms, strict=True)
+        ],
+        axis=2,
+    )  # (C, I, D, A, E, S)
     present = ~np.isnan(score).any(axis=2)  # (C, I, A, E, S): every detector responded
-    complete = present.all(axis=2)  # (C, I, E, S)
-    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
-    is_target = table["category"].values == target
-    pools = {
-        1: np.argwhere(usable & is_target[:, None]),
-        0: np.argwhere(usable & ~is_target[:, None]),
-    }
-    n_pos = int(round(positive_fraction * n_trials))
-    counts = {1: n_pos, 0: n_trials - n_pos}
-    for o, pool in pools.items():
-        if counts[o] and len(pool) == 0:
-            kind = "positive" if o else "negative"
-            raise ValueError(
-                f"no {kind} instances for target {target!r} in split {split!r} with a complete azimuth "
-                f"ring for every detector of {detectors}"
-            )
     # the same draws, in the same order, as scrppl.sim.make_trials
-    k_order, k_inst, k_pose, k_phi, k_ring = jax.random.split(key, 5)
-    labels = np.asarray(
-        jax.random.permutation(k_order, np.r_[np.ones(n_pos), np.zeros(n_trials - n_pos)])
-    ).astype(np.int32)
-    u_inst = np.asarray(jax.random.uniform(k_inst, (n_trials,)))
-    u_ring = np.asarray(jax.random.uniform(k_ring, (n_trials,)))
-    cat = np.empty(n_trials, np.int32)
-    inst = np.empty(n_trials, np.int32)
-    ring = np.empty((n_trials, 2), np.int32)
-    for t in range(n_trials):
-        pool = pools[int(labels[t])]
-        c, i = pool[min(int(u_inst[t] * len(pool)), len(pool) - 1)]
-        rings = np.argwhere(complete[c, i])
-        cat[t], inst[t] = c, i
-        ring[t] = rings[min(int(u_ring[t] * len(rings)), len(rings) - 1)]
-    pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
-    phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
+    labels, cat, inst, pose, start = draw_trials(
+        key,
+        table,
+        present,
+        target,
+        n_trials,
+        positive_fraction,
+        split,
+        f"every detector of {detectors}",
+    )
     resp = score[cat, inst]  # (T, D, A, E, S)
     avail = present[cat, inst]  # (T, A, E, S)
     return MultiTrials(
@@ -232,7 +205,7 @@ def make_multi_trials(
         available=jnp.asarray(avail),
         label=jnp.asarray(labels),
         pose=jnp.asarray(pose),
-        start=jnp.asarray(np.c_[phi0, ring]),
+        start=jnp.asarray(start),
         category=jnp.asarray(cat),
         instance=jnp.asarray(inst),
     )

@@ -22,7 +22,15 @@ import xarray as xr
 
 from scrppl.responses import table_grid, validate_response_table
 
-__all__ = ["Trials", "make_trials", "robot_frame", "observe", "select_trials"]
+__all__ = [
+    "Trials",
+    "make_trials",
+    "draw_trials",
+    "transformed_scores",
+    "robot_frame",
+    "observe",
+    "select_trials",
+]
 
 
 class Trials(NamedTuple):
@@ -112,15 +120,80 @@ def make_trials(
         raise ValueError(f"n_trials must be positive, got {n_trials}")
     if not 0.0 <= positive_fraction <= 1.0:
         raise ValueError(f"positive_fraction must lie in [0, 1], got {positive_fraction}")
+    score = transformed_scores(table, detector, target, transform)
+    present = ~np.isnan(score)
+    labels, cat, inst, pose, start = draw_trials(
+        key, table, present, target, n_trials, positive_fraction, split, f"detector {detector!r}"
+    )
+    resp = score[cat, inst]  # (T, A, E, S)
+    avail = ~np.isnan(resp)
+    return Trials(
+        responses=jnp.asarray(np.where(avail, resp, 0.0), jnp.float32),
+        available=jnp.asarray(avail),
+        label=jnp.asarray(labels),
+        pose=jnp.asarray(pose),
+        start=jnp.asarray(start),
+        category=jnp.asarray(cat),
+        instance=jnp.asarray(inst),
+    )
+
+
+def transformed_scores(
+    table: xr.Dataset,
+    detector: str,
+    target: str,
+    transform: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """One detector's scores for ``target``, shape ``(C, I, A, E, S)``, through ``transform``.
+
+    Raises ``ValueError`` if the transform changes the shape or turns a finite score into a non-finite
+    one (NaN, a missing view, must stay NaN).
+    """
     raw = table["score"].sel(detector=detector, target=target).values  # (C, I, A, E, S)
     score = np.asarray(transform(raw) if transform is not None else raw, dtype=np.float64)
     if score.shape != raw.shape:
-        raise ValueError(f"transform changed the shape of the scores: {raw.shape} -> {score.shape}")
+        raise ValueError(
+            f"transform of {detector!r} changed the shape of the scores: {raw.shape} -> {score.shape}"
+        )
     if np.isinf(score).any() or (np.isnan(score) & ~np.isnan(raw)).any():
-        raise ValueError("transform produced non-finite responses from finite scores")
-    grid = table_grid(table)
-    n_a = grid.n_azimuth
-    present = ~np.isnan(score)
+        raise ValueError(
+            f"transform of {detector!r} produced non-finite responses from finite scores"
+        )
+    return score
+
+
+def draw_trials(
+    key: jax.Array,
+    table: xr.Dataset,
+    present: np.ndarray,
+    target: str,
+    n_trials: int,
+    positive_fraction: float,
+    split: str,
+    what: str = "",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The random part of :func:`make_trials`: instances, poses and start views of ``n_trials`` trials.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key.
+    table
+        The response table (its ``split`` and ``category`` coordinates).
+    present
+        ``(C, I, A, E, S)``: views with a response. An instance is usable on an ``(e, s)`` ring where every
+        azimuth is present.
+    target, n_trials, positive_fraction, split
+        As for :func:`make_trials`.
+    what
+        Named in the error raised when a group has no usable instance.
+
+    Returns
+    -------
+    ``label (T,)``, ``category (T,)``, ``instance (T,)``, ``pose (T,)``, ``start (T, 3)`` (azimuth,
+    elevation, scale), as int32 NumPy arrays.
+    """
+    n_a = table_grid(table).n_azimuth
     complete = present.all(axis=2)  # (C, I, E, S): every azimuth present on that ring
     usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
     is_target = table["category"].values == target
@@ -135,13 +208,12 @@ def make_trials(
             kind = "positive" if o else "negative"
             raise ValueError(
                 f"no {kind} instances for target {target!r} in split {split!r} with a complete azimuth "
-                f"ring (detector {detector!r})"
+                f"ring ({what})"
             )
     k_order, k_inst, k_pose, k_phi, k_ring = jax.random.split(key, 5)
     labels = np.asarray(
         jax.random.permutation(k_order, np.r_[np.ones(n_pos), np.zeros(n_trials - n_pos)])
-    )
-    labels = labels.astype(np.int32)
+    ).astype(np.int32)
     u_inst = np.asarray(jax.random.uniform(k_inst, (n_trials,)))
     u_ring = np.asarray(jax.random.uniform(k_ring, (n_trials,)))
     cat = np.empty(n_trials, np.int32)
@@ -155,17 +227,7 @@ def make_trials(
         ring[t] = rings[min(int(u_ring[t] * len(rings)), len(rings) - 1)]
     pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
     phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
-    resp = score[cat, inst]  # (T, A, E, S)
-    avail = ~np.isnan(resp)
-    return Trials(
-        responses=jnp.asarray(np.where(avail, resp, 0.0), jnp.float32),
-        available=jnp.asarray(avail),
-        label=jnp.asarray(labels),
-        pose=jnp.asarray(pose),
-        start=jnp.asarray(np.c_[phi0, ring]),
-        category=jnp.asarray(cat),
-        instance=jnp.asarray(inst),
-    )
+    return labels, cat, inst, pose, np.c_[phi0, ring].astype(np.int32)
 
 
 def select_trials(trials: Trials, index) -> Trials:
