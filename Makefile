@@ -15,6 +15,7 @@ WORKERS ?= 2
 help:
 	@echo "make reproduce   the whole pipeline on the embedded default dataset -> $(OUT)/ (PROFILE=quick for a short run)"
 	@echo "make test        the test suite"
+	@echo "make book        the executed HTML book, offline -> book/_build/html (then a browser check)"
 	@echo "make lint        ruff"
 	@echo "make lock        regenerate environment.lock from pyproject.toml (needs uv, installed in .venv)"
 
@@ -30,6 +31,9 @@ quick: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n $(WORKERS) -q
 
+book: $(STAMP)
+	SEED=$(SEED) bash scripts/build-book.sh
+
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
@@ -38,4 +42,4 @@ lock: $(STAMP)
 		--generate-hashes --python-version 3.12 -o environment.lock
 
 clean-results:
-	rm -rf $(OUT) $(OUT)-quick
+	rm -rf $(OUT) $(OUT)-quick results-book

@@ -17,7 +17,8 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.sim` -- the simulator, trial runner and experiment;
 * :mod:`scrppl.extensions` -- beyond the paper: two-step lookahead, choosing which detector to run,
   fusing several detectors, and multi-detector trials;
-* :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib).
+* :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib);
+* :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object.
 """
 
 from __future__ import annotations
@@ -39,13 +40,18 @@ _SUBMODULES = (
     "plotting",
     "report",
     "responses",
+    "results",
     "sim",
 )
 
-__all__ = ["views", "ViewGrid", "SAVARESE_GRID", "relative_azimuth", "__version__", *_SUBMODULES]
+__all__ = ["open_results", "views", "ViewGrid", "SAVARESE_GRID", "relative_azimuth", "__version__", *_SUBMODULES]
 
 
 def __getattr__(name: str):
+    if name == "open_results":
+        from scrppl.results import open_results
+
+        return open_results
     if name in _SUBMODULES:
         return importlib.import_module(f"scrppl.{name}")
     raise AttributeError(f"module 'scrppl' has no attribute {name!r}")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from scrppl._io import CACHE_ENV
 
-PROFILES = ("quick", "full")
+PROFILES = ("quick", "book", "full")
 
 
 def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
@@ -26,7 +26,8 @@ def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
         "--profile",
         choices=PROFILES,
         default="full",
-        help="'full' (the default dataset) or 'quick' (a few categories and instances, short chains)",
+        help="'full' (the default dataset), 'book' (six categories at one height and scale: what the book "
+        "runs on) or 'quick' (a few categories and instances, short chains)",
     )
     if out:
         parser.add_argument(

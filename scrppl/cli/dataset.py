@@ -19,7 +19,7 @@ from scrppl.cli._common import add_common, dataset_root
 __all__ = ["register", "load_dataset", "describe", "format_summary", "DATASET_PROFILES"]
 
 #: Profiles of the synthetic dataset; ``tiny`` is the few-second configuration the tests use.
-DATASET_PROFILES = ("quick", "full", "tiny")
+DATASET_PROFILES = ("quick", "book", "full", "tiny")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,8 +89,9 @@ def _add_options(parser: argparse.ArgumentParser, *, out: bool, validate: bool =
         "--profile",
         choices=DATASET_PROFILES,
         default="full",
-        help="synthetic dataset profile: 'full' (10 categories x 10 instances x 72 views), 'quick' "
-        "(a few categories and instances) or 'tiny' (seconds; for tests); picks the default --root",
+        help="synthetic dataset profile: 'full' (10 categories x 10 instances x 72 views), 'book' "
+        "(6 categories x 10 instances x 8 views), 'quick' (a few categories and instances) or 'tiny' "
+        "(seconds; for tests); picks the default --root",
     )
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
     if validate:

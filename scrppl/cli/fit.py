@@ -25,7 +25,7 @@ from scrppl.cli._common import add_common
 #: Chains for both profiles (on one host device per core, up to one per chain).
 N_CHAINS = 4
 #: NUTS settings per profile: (warm-up, kept draws per chain).
-PROFILE_DRAWS = {"quick": (400, 400), "full": (500, 1000)}
+PROFILE_DRAWS = {"quick": (400, 400), "book": (500, 1000), "full": (500, 1000)}
 #: Targets drawn in Figs. 2 and 3 when present (the paper's choice).
 PAPER_TARGETS = ("bicycle", "car", "monitor")
 

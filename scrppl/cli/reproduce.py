@@ -9,6 +9,8 @@ Stages (each is also a command of its own):
 4. ``simulate`` -- the sequential-recognition experiment (``trials.nc``);
 5. ``report``   -- ``report.md`` with every figure and the key numbers.
 
+``run.json`` records the profile, seed and dataset folder (:func:`scrppl.open_results` reads it).
+
 A stage whose outputs exist and are newer than its inputs is skipped (``--force`` reruns everything).
 Stages whose command is not part of this installation are reported as such and skipped.
 """
@@ -105,8 +107,11 @@ def _run(args: argparse.Namespace) -> int:
     from scrppl.cli import main
     from scrppl.report import write_report
 
+    from scrppl.results import write_run_info
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    write_run_info(out, profile=args.profile, seed=args.seed, dataset_root=dataset_root(args))
     timings: dict[str, float | str] = {}
     for stage in stages(args):
         if importlib.util.find_spec(stage.module) is None:

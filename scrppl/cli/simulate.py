@@ -36,6 +36,13 @@ PROFILE_SETTINGS = {
         "max_draws": 8,
         "large_max_draws": 4,
     },
+    "book": {
+        "trials": 160,
+        "large_trials": 10000,
+        "n_samples": 128,
+        "max_draws": 16,
+        "large_max_draws": 8,
+    },
     "full": {
         "trials": 160,
         "large_trials": 10000,
@@ -364,7 +371,7 @@ def _run(args: argparse.Namespace) -> int:
                 target,
                 k_large,
                 settings["large_trials"],
-                settings["max_draws"],
+                settings["large_max_draws"],
                 lambda m: None,
             )
             t0 = time.perf_counter()

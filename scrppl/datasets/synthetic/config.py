@@ -14,7 +14,7 @@ from scrppl.views import ViewGrid
 __all__ = ["SyntheticConfig", "PROFILES"]
 
 #: Profiles of :meth:`SyntheticConfig.for_profile`.
-PROFILES = ("full", "quick", "tiny")
+PROFILES = ("full", "book", "quick", "tiny")
 
 
 def _all_categories() -> tuple[str, ...]:
@@ -117,6 +117,8 @@ class SyntheticConfig:
         * ``"full"``: all ten categories x 10 instances x the Savarese grid (8 x 3 x 3) = 7,200 images.
         * ``"quick"``: four categories x 6 instances x 8 azimuths at one height and scale (192 images,
           well under a minute) -- a pipeline that runs end to end in a few minutes.
+        * ``"book"``: six categories x 10 instances x 8 azimuths at one height and scale (480 images) --
+          what the book's chapters are executed against when no full run exists (a few minutes end to end).
         * ``"tiny"``: three categories x 2 instances x 8 azimuths at one height and scale (48 images,
           seconds) -- for tests.
         """
@@ -126,6 +128,12 @@ class SyntheticConfig:
             return cls(
                 categories=("bicycle", "car", "monitor", "shoe"),
                 n_instances=6,
+                grid=ViewGrid(8, (25.0,), (1.4,)),
+            )
+        if name == "book":
+            return cls(
+                categories=("bicycle", "car", "cellphone", "monitor", "mouse", "shoe"),
+                n_instances=10,
                 grid=ViewGrid(8, (25.0,), (1.4,)),
             )
         if name == "tiny":

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Build the executed HTML book offline, then check every page in headless Chromium.
+#
+# 1. Results: reuse results/ when it holds a full run; otherwise run (or resume) the small `book` profile
+#    of `scrppl reproduce` into results-book/. Chapters read the chosen folder through $SCRPPL_RESULTS.
+# 2. MathJax 3 from the npm registry into book/_build/.mathjax (not committed; reused when present).
+# 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors.
+# 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets; screenshots.
+# Timings go to book/_build/timings.json.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=.venv
+SEED=${SEED:-0}
+t_start=$(date +%s)
+
+if [ -n "${SCRPPL_RESULTS:-}" ]; then
+  results=$SCRPPL_RESULTS
+  echo "[book] results: $results (from \$SCRPPL_RESULTS)"
+elif [ -f results/run.json ] && grep -q '"profile": "full"' results/run.json && [ -f results/trials.nc ]; then
+  results=results
+  echo "[book] results: reusing the full run in results/"
+else
+  results=results-book
+  echo "[book] results: the book profile in $results/ (scrppl reproduce --profile book; current stages are skipped)"
+  $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
+fi
+t_results=$(date +%s)
+
+bash scripts/install-mathjax.sh
+
+if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "[book] installing Chromium (Debian package) for the page check"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  fi
+fi
+
+# JAX on the 2-core CI machines: no accelerators, quiet.
+# Notebooks execute in their own folders: hand them an absolute path.
+export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
+export MPLBACKEND=Agg
+rm -rf book/_build/html book/_build/jupyter_execute book/_build/.doctrees
+t_build0=$(date +%s)
+$VENV/bin/jupyter-book build -W -n --keep-going book/
+t_build=$(date +%s)
+$VENV/bin/python scripts/check_book.py --html book/_build/html --toc book/_toc.yml
+t_end=$(date +%s)
+$VENV/bin/python - "$results" $((t_results - t_start)) $((t_build - t_build0)) $((t_end - t_build)) $((t_end - t_start)) <<'PY'
+import json, sys
+from pathlib import Path
+results, t_res, t_build, t_check, total = sys.argv[1], *map(int, sys.argv[2:])
+Path("book/_build/timings.json").write_text(json.dumps(
+    {"results": results, "results_s": t_res, "build_s": t_build, "check_s": t_check, "total_s": total},
+    indent=2) + "\n")
+print(f"[book] done in {total} s (results {t_res} s, build {t_build} s, page check {t_check} s)")
+PY
