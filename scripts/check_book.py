@@ -210,7 +210,9 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as profile:
             for page in toc_pages(args.toc):
                 url = f"http://127.0.0.1:{port}/{page}.html"
-                r = probe(browser, f"http://127.0.0.1:{port}/_probe.html?page=/{page}.html", profile)
+                r = probe(
+                    browser, f"http://127.0.0.1:{port}/_probe.html?page=/{page}.html", profile
+                )
                 probs = problems_of(page, r)
                 if page.startswith(args.require_math) and not r.get("mathjax"):
                     probs.append("no typeset math on a chapter page")

@@ -39,7 +39,11 @@ def write_run_info(out: str | Path, *, profile: str, seed: int, dataset_root: st
     from scrppl._io import atomic_path
 
     path = Path(out) / RUN_FILE
-    info = {"profile": profile, "seed": int(seed), "dataset_root": str(Path(dataset_root).resolve())}
+    info = {
+        "profile": profile,
+        "seed": int(seed),
+        "dataset_root": str(Path(dataset_root).resolve()),
+    }
     with atomic_path(path) as tmp:
         Path(tmp).write_text(json.dumps(info, indent=2) + "\n")
     return path
@@ -79,7 +83,9 @@ class Results:
                 "trials-large.nc": "scrppl simulate",
                 "simulate-summary.json": "scrppl simulate",
             }.get(parts[0] if parts else "", "scrppl reproduce")
-            raise FileNotFoundError(f"{p} does not exist (it is written by `{stage} --out {self.root}`)")
+            raise FileNotFoundError(
+                f"{p} does not exist (it is written by `{stage} --out {self.root}`)"
+            )
         return p
 
     @property
@@ -193,7 +199,9 @@ def open_results(path: str | Path | None = None) -> Results:
     try:
         info = json.loads(info_path.read_text())
     except json.JSONDecodeError as err:
-        raise ValueError(f"{info_path} is not valid JSON ({err}); rerun `scrppl reproduce`") from err
+        raise ValueError(
+            f"{info_path} is not valid JSON ({err}); rerun `scrppl reproduce`"
+        ) from err
     ds = info.get("dataset_root")
     return Results(
         root=root,

@@ -301,9 +301,9 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     save_response_table(table, tmp_path / "responses.nc")
     calls = []
 
-    def fake_loader(models_dir, kind, detector, target):
+    def fake_loader(models_dir, kind, detector, target, n_draws=None):
         # the models stage is tested elsewhere; here only its contract matters
-        calls.append((kind, detector, target))
+        calls.append((kind, detector, target, n_draws))
         if kind != "gaussian":
             raise FileNotFoundError(f"no {kind} model in {models_dir}")
         return model, {"transform": "identity"}
@@ -311,8 +311,13 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     monkeypatch.setattr(models, "load_response_model", fake_loader, raising=False)
     argv = ["simulate", "--out", str(tmp_path), "--profile", "quick", "--trials", "12"]
     argv += ["--large-trials", "16", "--n-samples", "64", "--quiet"]
+    argv += ["--max-draws", "6", "--large-max-draws", "3"]
     assert main(argv) == 0
-    assert ("gaussian", "dpm", "car") in calls
+    # the paper's experiment keeps --max-draws posterior draws, the large one --large-max-draws
+    assert [c for c in calls if c[0] == "gaussian"] == [
+        ("gaussian", "dpm", "car", 6),
+        ("gaussian", "dpm", "car", 3),
+    ]
     summary = json.loads((tmp_path / "simulate-summary.json").read_text())
     headline = summary["targets"]["car"]["paper_experiment"]["gaussian+naive_bayes"]
     assert set(headline["views_to_confidence"]) == {"sampled", "random"}
@@ -321,5 +326,12 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     assert sim.load_trials(tmp_path / "trials-large.nc").sizes["trial"] == 16
     figures = {p.name for p in (tmp_path / "figures").iterdir()}
     assert {"fig4-car.png", "fig5-car-gaussian-naive_bayes.png", "calibration.png"} <= figures
+    # a notebook calling the library gets the command's numbers for the same seed
+    study = sim.run_study(
+        0, table, tmp_path / "models", "dpm", ["car"], trials=12, n_samples=64, max_draws=6
+    )
+    assert study.large is None
+    for var in ("views_to_confidence", "p_true", "azimuth"):
+        np.testing.assert_array_equal(study.trials[var].values, ds[var].values)
     # a missing response table is a clear error, not a traceback
     assert main(["simulate", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1

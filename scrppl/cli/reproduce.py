@@ -106,7 +106,6 @@ def stages(args: argparse.Namespace) -> list[Stage]:
 def _run(args: argparse.Namespace) -> int:
     from scrppl.cli import main
     from scrppl.report import write_report
-
     from scrppl.results import write_run_info
 
     out = Path(args.out)

@@ -5,6 +5,7 @@
   (:func:`run_trials`).
 * :mod:`scrppl.sim.metrics` -- per-step metrics, bootstrap intervals, calibration.
 * :mod:`scrppl.sim.experiment` -- the paired planner comparison as an ``xarray.Dataset``.
+* :mod:`scrppl.sim.study` -- the whole study of ``scrppl simulate`` (:func:`run_study`), piece by piece.
 """
 
 from scrppl.sim.experiment import (
@@ -26,6 +27,14 @@ from scrppl.sim.metrics import (
 )
 from scrppl.sim.runner import TrialRecord, run_trial, run_trials
 from scrppl.sim.simulator import Trials, make_trials, observe, robot_frame, select_trials
+from scrppl.sim.study import (
+    Study,
+    example_trial,
+    headline,
+    load_methods,
+    pooled_calibration,
+    run_study,
+)
 
 __all__ = [
     "Trials",
@@ -49,4 +58,10 @@ __all__ = [
     "calibration",
     "save_trials",
     "load_trials",
+    "load_methods",
+    "example_trial",
+    "headline",
+    "pooled_calibration",
+    "Study",
+    "run_study",
 ]

@@ -1,0 +1,379 @@
+"""The sequential-recognition study as ``scrppl simulate`` runs it, as library functions.
+
+The command line only parses arguments, calls :func:`run_study` and draws the figures; a notebook calls the
+same functions and gets the same numbers for the same key.
+
+* :func:`load_methods` -- every fitted model kind of one (detector, target) as :class:`Method` objects on
+  the same trials (each through its model's response transform);
+* :func:`example_trial` -- one positive trial, planned by expected entropy, for the paper's Fig. 4;
+* :func:`headline` -- the compact per-method numbers of ``simulate-summary.json``;
+* :func:`pooled_calibration` -- reliability and ECE pooled over several experiments;
+* :func:`run_study` -- the paper's experiment (and the large one) for several targets.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from scrppl.sim import metrics as M
+from scrppl.sim.experiment import Method, calibration, compare_planners, run_experiment, summarise
+
+__all__ = [
+    "DEFAULT_KINDS",
+    "PLANNERS",
+    "load_methods",
+    "example_trial",
+    "headline",
+    "pooled_calibration",
+    "Study",
+    "run_study",
+]
+
+#: Model kinds tried in order; each is loaded with :func:`scrppl.models.load_response_model`.
+DEFAULT_KINDS = ("gaussian", "hierarchical")
+#: The planners the study compares: entropy planning (eq. 5) and the paper's random unseen view.
+PLANNERS = ("sampled", "random")
+
+
+def load_methods(
+    key: jax.Array,
+    models_dir: str | Path,
+    table: xr.Dataset,
+    detector: str,
+    target: str,
+    n_trials: int,
+    *,
+    kinds: Sequence[str] = DEFAULT_KINDS,
+    max_draws: int | None = None,
+    log: Callable[[str], None] = lambda msg: None,
+) -> tuple[dict[str, Method], dict[str, str]]:
+    """Every available model kind of one fit, as methods on the same ``n_trials`` trials.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the trials (the same instances, poses and start views for every method).
+    models_dir
+        The ``models/`` folder written by ``scrppl fit``.
+    table
+        The response table the trials are drawn from.
+    detector, target
+        Which fit.
+    n_trials
+        Trials to draw.
+    kinds
+        Model kinds to try; a kind with no saved model is skipped (and logged).
+    max_draws
+        Posterior draws kept (evenly thinned by :func:`scrppl.models.load_response_model`).
+    log
+        Where to report skipped kinds.
+
+    Returns
+    -------
+    methods
+        ``"<kind>+naive_bayes"`` for every kind, and ``"<kind>+instance"`` for models with an instance
+        effect (several draws or ``tau > 0``).
+    transforms
+        The response transform of each kind loaded.
+
+    Raises
+    ------
+    FileNotFoundError
+        If no kind has a saved model.
+    """
+    from scrppl.models import load_response_model, transforms
+    from scrppl.models.response import check_response_model
+    from scrppl.responses import table_grid
+    from scrppl.sim.simulator import make_trials
+
+    methods: dict[str, Method] = {}
+    used: dict[str, str] = {}
+    for kind in kinds:
+        try:
+            model, info = load_response_model(models_dir, kind, detector, target, n_draws=max_draws)
+        except FileNotFoundError as err:
+            log(f"  {target}: no {kind} model ({err}); skipped")
+            continue
+        check_response_model(model, table_grid(table).shape)
+        name = info.get("transform", "identity")
+        used[kind] = name
+        trials = make_trials(
+            key,
+            table,
+            detector,
+            target,
+            n_trials,
+            transform=lambda raw, name=name: transforms.apply(name, raw),
+        )
+        methods[f"{kind}+naive_bayes"] = Method(model, "naive_bayes", trials)
+        if model.mu.shape[0] > 1 or float(np.max(np.asarray(model.tau))) > 0:
+            methods[f"{kind}+instance"] = Method(model, "instance", trials)
+    if not methods:
+        raise FileNotFoundError(
+            f"no viewpoint model for detector {detector!r}, target {target!r} under {models_dir} "
+            f"(kinds tried: {', '.join(kinds)}); run `scrppl fit` first"
+        )
+    return methods, used
+
+
+def example_trial(
+    key: jax.Array, method: Method, *, pose_degrees: float = 135.0, n_steps: int = 3, **run_options
+) -> tuple[np.ndarray, int, list[int | None]] | None:
+    """One positive trial planned by expected entropy, for the paper's Fig. 4.
+
+    The first positive trial of ``method.trials`` with the object turned to ``pose_degrees`` (the
+    nearest azimuth bin).
+
+    Returns
+    -------
+    beliefs
+        ``(n_steps + 1, O, A)``: the prior, then the joint belief after each view.
+    pose
+        The object's pose bin.
+    robot_azimuths
+        ``None`` for the prior, then the robot's azimuth bin at each view.
+
+    ``None`` if the trials hold no positive instance.
+    """
+    from scrppl.belief import init_belief, joint_belief
+    from scrppl.sim.runner import run_trials
+    from scrppl.sim.simulator import select_trials
+    from scrppl.views import degrees_to_azimuth
+
+    trials = method.trials
+    pos = np.flatnonzero(np.asarray(trials.label) == 1)
+    if len(pos) == 0:
+        return None
+    one = select_trials(trials, pos[:1])
+    pose = int(degrees_to_azimuth(pose_degrees, one.responses.shape[1]))
+    one = one._replace(pose=jnp.asarray([pose], one.pose.dtype))
+    rec = run_trials(
+        key,
+        method.model,
+        one,
+        filter=method.filter,
+        planner="sampled",
+        n_steps=n_steps,
+        **run_options,
+    )
+    prior = np.asarray(joint_belief(init_belief(method.filter, method.model)))
+    beliefs = np.concatenate([prior[None], np.exp(np.asarray(rec.log_belief[0]))])
+    robots: list[int | None] = [None] + [int(v) for v in np.asarray(rec.views[0, :, 0])]
+    return beliefs, pose, robots
+
+
+def headline(ds: xr.Dataset, summary: xr.Dataset, comparison: Mapping, cal: Mapping) -> dict:
+    """Compact numbers per method (views to confidence, ECE, metrics at steps 1, 2, 4 and the last).
+
+    ``summary``, ``comparison`` and ``cal`` are what :func:`~scrppl.sim.summarise`,
+    :func:`~scrppl.sim.compare_planners` and :func:`~scrppl.sim.calibration` return for ``ds``.
+    """
+    steps = [int(s) for s in ds["step"].values]
+    pick = [s for s in (1, 2, 4, steps[-1]) if s in steps]
+    out = {}
+    for name in ds["filter"].values.tolist():
+        s = summary.sel({"filter": name})
+        c = comparison[name]
+        planners = s["planner"].values.tolist()
+
+        def by_step(var: str, s=s, planners=planners) -> dict:
+            return {
+                p: {str(k): round(float(s[var].sel(planner=p, step=k)), 4) for k in pick}
+                for p in planners
+            }
+
+        out[name] = {
+            "views_to_confidence": c["views_to_confidence"],
+            "reached_confidence": c["reached_confidence"],
+            "views_to_confidence_difference_95ci": c["views_to_confidence_difference"],
+            "ece": round(cal[name]["ece"], 4),
+            "class_entropy_by_step": by_step("class_entropy"),
+            "p_correct_by_step": by_step("correct"),
+            "tp_minus_tn_by_step": by_step("tp_minus_tn"),
+        }
+    return out
+
+
+def pooled_calibration(datasets: Sequence[xr.Dataset]) -> dict[str, dict[str, Any]]:
+    """Reliability bins and ECE of ``p(o = 1 | F)`` per method, pooled over several experiments."""
+    ps: dict[str, list] = {}
+    ys: dict[str, list] = {}
+    for ds in datasets:
+        label = ds["label"].values
+        for name in ds["filter"].values.tolist():
+            p = ds["p_present"].sel({"filter": name}).values
+            ps.setdefault(name, []).append(p.ravel())
+            ys.setdefault(name, []).append(np.broadcast_to(label[None, :, None], p.shape).ravel())
+    out = {}
+    for name in ps:
+        p, y = np.concatenate(ps[name]), np.concatenate(ys[name])
+        mean_p, frac, count = M.reliability(p, y)
+        out[name] = {
+            "ece": M.expected_calibration_error(p, y),
+            "mean_p": [None if np.isnan(v) else float(v) for v in mean_p],
+            "frac": [None if np.isnan(v) else float(v) for v in frac],
+            "count": count.astype(int).tolist(),
+        }
+    return out
+
+
+class Study(NamedTuple):
+    """What :func:`run_study` returns.
+
+    Attributes
+    ----------
+    trials
+        The paper-sized experiment of every target (``target`` added as the first dimension).
+    large
+        The large experiment of every target, or ``None`` when ``large_trials == 0``.
+    summaries
+        Target -> :func:`~scrppl.sim.summarise` of its paper-sized experiment (Fig. 5 is drawn from it).
+    examples
+        Target -> :func:`example_trial` of its first method (Fig. 4), or ``None``.
+    calibration
+        :func:`pooled_calibration` of the paper-sized experiments.
+    summary
+        The JSON-ready summary (``simulate-summary.json``): settings, per-target headline numbers and times.
+    """
+
+    trials: xr.Dataset
+    large: xr.Dataset | None
+    summaries: dict[str, xr.Dataset]
+    examples: dict[str, Any]
+    calibration: dict[str, dict[str, Any]]
+    summary: dict[str, Any]
+
+
+def run_study(
+    seed: int,
+    table: xr.Dataset,
+    models_dir: str | Path,
+    detector: str,
+    targets: Sequence[str],
+    *,
+    trials: int = 160,
+    large_trials: int = 0,
+    n_samples: int = 256,
+    max_draws: int | None = 32,
+    large_max_draws: int | None = 8,
+    objective: str = "joint",
+    motion_cost: float = 0.0,
+    kinds: Sequence[str] = DEFAULT_KINDS,
+    progress: bool = False,
+    log: Callable[[str], None] = lambda msg: None,
+) -> Study:
+    """The experiment of ``scrppl simulate``: for each target, every method, entropy planning vs random.
+
+    For target number ``i`` the key ``fold_in(key(seed), i)`` is split into the keys of the trials, the
+    planners, the large experiment's trials and the Fig. 4 trial, so a target's numbers do not depend on
+    which other targets are run.
+
+    Parameters
+    ----------
+    seed
+        The seed (``scrppl simulate --seed``).
+    table, models_dir
+        The response table and the ``models/`` folder of the run.
+    detector, targets
+        Which fits.
+    trials, large_trials
+        Trials of the paper's experiment (160) and of the large one (0 skips it).
+    n_samples
+        Samples M per planning decision (eq. 5).
+    max_draws, large_max_draws
+        Posterior draws kept in the paper's and in the large experiment.
+    objective, motion_cost
+        The planner's objective (``joint``, ``class``, ``pose``) and cost in nats per azimuth bin travelled.
+    kinds
+        Model kinds to load.
+    progress, log
+        Progress bars, and where to report each step.
+    """
+    import time
+
+    if trials < 2:
+        raise ValueError(f"trials must be at least 2, got {trials}")
+    run_options = {
+        "n_samples": int(n_samples),
+        "objective": objective,
+        "mode": "azimuth",
+        "motion_cost": float(motion_cost),
+    }
+    names = table["category"].values.tolist()
+    summary: dict[str, Any] = {
+        "detector": detector,
+        "settings": {
+            "trials": trials,
+            "large_trials": large_trials,
+            "n_samples": int(n_samples),
+            "max_draws": max_draws,
+            "large_max_draws": large_max_draws,
+            "objective": objective,
+            "motion_cost": float(motion_cost),
+            "planners": list(PLANNERS),
+            "positive_fraction": 0.5,
+            "confidence_threshold": M.CONFIDENCE,
+        },
+        "targets": {},
+    }
+    root = jax.random.key(seed)
+    paper_sets, large_sets, summaries, examples = [], [], {}, {}
+    t_start = time.perf_counter()
+    for ti, target in enumerate(targets):
+        k_trials, k_run, k_large, k_fig = jax.random.split(jax.random.fold_in(root, ti), 4)
+        log(f"[simulate] {target}: {trials} trials")
+        methods, used = load_methods(
+            k_trials, models_dir, table, detector, target, trials, kinds=kinds,
+            max_draws=max_draws, log=log,
+        )  # fmt: skip
+        t0 = time.perf_counter()
+        ds = run_experiment(
+            k_run, methods, PLANNERS, category_names=names, progress=progress, **run_options
+        )
+        entry: dict[str, Any] = {"transforms": used, "seconds": round(time.perf_counter() - t0, 2)}
+        summaries[target] = summarise(ds, seed=seed)
+        entry["paper_experiment"] = headline(
+            ds, summaries[target], compare_planners(ds, seed=seed), calibration(ds)
+        )
+        paper_sets.append(ds)
+        examples[target] = example_trial(k_fig, next(iter(methods.values())), **run_options)
+        if large_trials > 0:
+            log(f"[simulate] {target}: large experiment, {large_trials} trials")
+            large_methods, _ = load_methods(
+                k_large, models_dir, table, detector, target, large_trials, kinds=kinds,
+                max_draws=large_max_draws,
+            )  # fmt: skip
+            t0 = time.perf_counter()
+            big = run_experiment(
+                k_run, large_methods, PLANNERS, category_names=names, progress=progress,
+                chunk_size=2048, **run_options,
+            )  # fmt: skip
+            entry["large_experiment"] = headline(
+                big,
+                summarise(big, seed=seed, n_boot=200),
+                compare_planners(big, seed=seed, n_boot=500),
+                calibration(big),
+            )
+            entry["large_seconds"] = round(time.perf_counter() - t0, 2)
+            large_sets.append(big)
+        summary["targets"][target] = entry
+    targets = list(targets)
+    paper = xr.concat(paper_sets, dim="target", join="outer").assign_coords(target=targets)
+    large = (
+        xr.concat(large_sets, dim="target", join="outer").assign_coords(target=targets)
+        if large_sets
+        else None
+    )
+    pooled = pooled_calibration(paper_sets)
+    summary["calibration_ece_pooled_over_targets"] = {
+        k: round(v["ece"], 4) for k, v in pooled.items()
+    }
+    summary["seconds_total"] = round(time.perf_counter() - t_start, 1)
+    return Study(paper, large, summaries, examples, pooled, summary)
