@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Build the executed HTML book offline, then check every page in headless Chromium.
 #
-# 1. Results: reuse results/ when it holds a full run; otherwise run (or resume) the small `book` profile
-#    of `scrppl reproduce` into results-book/. Chapters read the chosen folder through $SCRPPL_RESULTS.
+# 1. Results: run (or resume) the small `book` profile of `scrppl reproduce` into results-book/, or use the
+#    run folder named by $SCRPPL_RESULTS (`make book RESULTS=results` for a full run). Chapters read the
+#    chosen folder through $SCRPPL_RESULTS and say on each page which run they show.
 # 2. MathJax 3 from the npm registry into book/_build/.mathjax (not committed; reused when present).
 # 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors.
 # 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets; screenshots.
 # Timings go to book/_build/timings.json.
 set -euo pipefail
+shopt -s inherit_errexit 2>/dev/null || true
 cd "$(dirname "$0")/.."
 VENV=.venv
 SEED=${SEED:-0}
@@ -15,11 +17,10 @@ t_start=$(date +%s)
 
 if [ -n "${SCRPPL_RESULTS:-}" ]; then
   results=$SCRPPL_RESULTS
-  echo "[book] results: $results (from \$SCRPPL_RESULTS)"
-elif [ -f results/run.json ] && grep -q '"profile": "full"' results/run.json && [ -f results/trials.nc ]; then
-  results=results
-  echo "[book] results: reusing the full run in results/"
+  [ -f "$results/run.json" ] || { echo "[book] $results has no run.json: not a run folder of scrppl reproduce" >&2; exit 1; }
+  echo "[book] results: $results (from \$SCRPPL_RESULTS; e.g. a full run's results/)"
 else
+  # The chapters' asserted claims are checked against this profile: the build is the same everywhere.
   results=results-book
   echo "[book] results: the book profile in $results/ (scrppl reproduce --profile book; current stages are skipped)"
   $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
@@ -38,10 +39,12 @@ fi
 # JAX on the 2-core CI machines: no accelerators, quiet.
 # Notebooks execute in their own folders: hand them an absolute path.
 export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
-export MPLBACKEND=Agg
+# No MPLBACKEND: Jupyter kernels then use the inline backend and show the figures a cell draws.
+unset MPLBACKEND
 rm -rf book/_build/html book/_build/jupyter_execute book/_build/.doctrees
 t_build0=$(date +%s)
-$VENV/bin/jupyter-book build -W -n --keep-going book/
+mkdir -p book/_build
+$VENV/bin/jupyter-book build -W -n --keep-going book/ 2>&1 | tee book/_build/jupyter-book.log
 t_build=$(date +%s)
 $VENV/bin/python scripts/check_book.py --html book/_build/html --toc book/_toc.yml
 t_end=$(date +%s)
@@ -49,8 +52,14 @@ $VENV/bin/python - "$results" $((t_results - t_start)) $((t_build - t_build0)) $
 import json, sys
 from pathlib import Path
 results, t_res, t_build, t_check, total = sys.argv[1], *map(int, sys.argv[2:])
+import re
+pages = {}
+for line in Path("book/_build/jupyter-book.log").read_text(errors="replace").splitlines():
+    m = re.search(r"book/(\S+)\.md: Executed notebook in ([0-9.]+) seconds", line)
+    if m:
+        pages[m.group(1)] = float(m.group(2))
 Path("book/_build/timings.json").write_text(json.dumps(
-    {"results": results, "results_s": t_res, "build_s": t_build, "check_s": t_check, "total_s": total},
-    indent=2) + "\n")
+    {"results": results, "results_s": t_res, "build_s": t_build, "check_s": t_check, "total_s": total,
+     "executed_pages_s": pages}, indent=2) + "\n")
 print(f"[book] done in {total} s (results {t_res} s, build {t_build} s, page check {t_check} s)")
 PY

@@ -34,7 +34,12 @@ def main(argv: list[str]) -> int:
     if not page.exists():
         print(f"build_chapter: {page} not found")
         return 2
-    rel = page.resolve().relative_to(BOOK.resolve())
+    # Not resolve(): book/exercises is a link to notebooks/, and the page's path in the book is wanted.
+    # An exercise notebook may also be named by its source path, notebooks/NN-name.md.
+    absolute = Path(os.path.abspath(page))
+    if absolute.parent == Path(os.path.abspath("notebooks")):
+        absolute = Path(os.path.abspath(BOOK / "exercises" / page.name))
+    rel = absolute.relative_to(Path(os.path.abspath(BOOK)))
     stem = rel.with_suffix("").as_posix()
     name = stem.replace("/", "-")
     subprocess.run(["bash", "scripts/install-mathjax.sh"], check=True)
@@ -42,8 +47,9 @@ def main(argv: list[str]) -> int:
     src = work / "src"
     if src.exists():
         shutil.rmtree(src)
+    # symlinks=False: book/exercises links to ../notebooks, which the copy must contain itself.
     shutil.copytree(
-        BOOK, src, ignore=shutil.ignore_patterns("_build", ".ipynb_checkpoints"), symlinks=True
+        BOOK, src, ignore=shutil.ignore_patterns("_build", ".ipynb_checkpoints"), symlinks=False
     )
     cfg = yaml.safe_load((BOOK / "_config.yml").read_text())
     others = [
@@ -57,7 +63,9 @@ def main(argv: list[str]) -> int:
         str((BOOK / p).resolve()) if p.startswith("_build") else p for p in statics
     ]
     (src / "_config.yml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    env = dict(os.environ, MPLBACKEND="Agg", JAX_PLATFORMS="cpu")
+    # No MPLBACKEND: Jupyter kernels then use the inline backend and show the figures a cell draws.
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env.pop("MPLBACKEND", None)
     # Notebooks execute in their own folder: the results folder must be an absolute path.
     env["SCRPPL_RESULTS"] = str(Path(env.get("SCRPPL_RESULTS", "results-book")).resolve())
     proc = subprocess.run(
@@ -77,10 +85,14 @@ def main(argv: list[str]) -> int:
     )
     log = proc.stdout + proc.stderr
     (work / "build.log").write_text(log)
+    # Pages of the same name in other folders (chapters/02-dataset.md, exercises/02-dataset.md) are
+    # told apart by their folder.
+    namesakes = [o.rsplit(".", 1)[0] for o in others if o.endswith("/" + rel.name)]
     mine = [
         line
         for line in log.splitlines()
-        if (stem in line or rel.name in line) and ("WARNING" in line or "ERROR" in line)
+        if (stem in line or (rel.name in line and not any(n in line for n in namesakes)))
+        and ("WARNING" in line or "ERROR" in line)
     ]
     # Execution failures are reported with the notebook's name; show their tracebacks.
     if proc.returncode not in (0, 1):

@@ -375,6 +375,55 @@ def test_view_sphere_and_camera_positions(tmp_path):
     plt.close(ax.figure)
 
 
+def test_show_image_draws_the_proto_object_window(dataset_root):
+    """``window=margin`` adds a dashed rectangle exactly where proto_object_window cuts the crop."""
+    import matplotlib.pyplot as plt
+
+    from scrppl.detectors import proto_object_window
+    from scrppl.plotting.dataset import show_image
+
+    ds = MultiviewDataset.load(dataset_root)
+    # boxes near the left (a = 0) and the right (a = 7) edge: the window is clipped
+    for k in (0, 7):
+        row = ds.index.iloc[k]
+        ax = show_image(ds, row, window=1.0)
+        assert len(ax.patches) == 2  # the box, then the window
+        crop, (cx, cy) = proto_object_window(ds.load_image(row), ds.bbox(row), margin=1.0)
+        win = ax.patches[1]
+        assert win.get_xy() == (cx - 0.5, cy - 0.5)
+        assert (win.get_width(), win.get_height()) == (crop.shape[1], crop.shape[0])
+        assert win.get_linestyle() == "--"
+        x0, y0, x1, y1 = ds.bbox(row)
+        assert cx <= x0 and cy <= y0 and cx + crop.shape[1] >= x1 and cy + crop.shape[0] >= y1
+        assert cx + crop.shape[1] <= W and cy + crop.shape[0] <= H
+        assert cx == 0 or cx + crop.shape[1] == W  # clipped to the image
+        plt.close(ax.figure)
+    ax = show_image(ds, ds.index.iloc[0], box=False, mask=False, title=False)
+    assert not ax.patches and not ax.get_title()
+    plt.close(ax.figure)
+
+
+def test_show_images_lays_out_panels(dataset_root):
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting.dataset import show_images
+
+    ds = MultiviewDataset.load(dataset_root)
+    rows = ds.select(category="car", azimuth=3)
+    fig = show_images(ds, rows, ncols=2, window=0.15, mask=False)
+    axes = fig.axes
+    assert len(axes) == 4 and [ax.get_visible() for ax in axes] == [True, True, True, False]
+    for ax, (_, row) in zip(axes, rows.iterrows(), strict=False):
+        assert ax.get_title().startswith(f"car #{row['instance']}")
+        assert len(ax.patches) == 2  # box and window
+    plt.close(fig)
+    fig = show_images(ds, rows.iloc[:2], box=False, title=False)
+    assert len(fig.axes) == 2 and not any(ax.patches for ax in fig.axes)
+    plt.close(fig)
+    with pytest.raises(ValueError, match="empty"):
+        show_images(ds, rows.iloc[:0])
+
+
 # -- the real synthetic generator, end to end -----------------------------------------------------
 @pytest.mark.slow
 def test_make_info_sheet_on_the_tiny_synthetic_profile(tmp_path, capsys):

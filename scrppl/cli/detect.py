@@ -145,6 +145,7 @@ def fig1_threshold(table, family: str, target: str) -> float:
 
 def write_figures(dataset, detectors, table, folder: Path) -> list[Path]:
     """Fig. 1 for one test instance per target, and the mean-by-azimuth summary per family."""
+    import matplotlib.pyplot as plt
     import numpy as np
 
     from scrppl._io import atomic_path
@@ -202,11 +203,13 @@ def write_figures(dataset, detectors, table, folder: Path) -> list[Path]:
         path = folder / f"fig1-{target}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)
+        plt.close(fig)
         written.append(path)
     for family in families:
         fig = plot_mean_response_by_azimuth(table, family, split=("fit", "test"))
         path = folder / f"responses-{family}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)
+        plt.close(fig)
         written.append(path)
     return written

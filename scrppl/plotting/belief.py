@@ -11,8 +11,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
-__all__ = ["plot_posterior_evolution", "plot_planner_comparison", "plot_calibration"]
+__all__ = [
+    "plot_posterior_evolution",
+    "plot_planner_comparison",
+    "plot_calibration",
+    "plot_repeated_view",
+    "plot_expected_entropies",
+    "plot_sampling_error",
+    "plot_step_comparison",
+]
 
 _PLANNER_COLOURS = {"sampled": "C0", "quadrature": "C2", "plug_in": "C4", "random": "C3"}
 
@@ -97,6 +106,7 @@ def plot_posterior_evolution(
                 label="robot",
             )
         ax.set_ylim(0, rmax)
+        ax.yaxis.set_major_locator(MaxNLocator(3))  # few radial labels: they must not overlap
         ax.set_xticks(np.deg2rad(np.arange(n_a) * 360.0 / n_a))
         ax.set_title(titles[k], fontsize=10)
         ax.tick_params(labelsize=7)
@@ -191,5 +201,275 @@ def plot_calibration(calibration: Mapping[str, Mapping], title: str = "") -> Fig
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="lower right")
     ax.set_title(title or "calibration of the class belief", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _new_axes(ax, figsize):
+    """``(fig, ax)``: the figure of ``ax``, or a new single-panel figure with an opaque white background."""
+    if ax is None:
+        fig, ax = plt.subplots(figsize=figsize)
+        fig.set_facecolor("white")
+    return ax.figure, ax
+
+
+def plot_repeated_view(
+    p_present: Mapping[str, np.ndarray],
+    label,
+    *,
+    example: int | None = None,
+    axes=None,
+) -> Figure:
+    """The same view looked at ``k`` times: ``p(o = present | f_1..f_k)`` for several filters.
+
+    Shows how a filter that treats repeated responses as independent (naive Bayes) grows more confident
+    with every look while its accuracy does not move, whereas the instance-aware filter's confidence
+    stays close to its accuracy.
+
+    Parameters
+    ----------
+    p_present
+        Filter name -> ``p(o = 1 | f_1..f_k)``, shape ``(R, K)`` (replicate ``r``, look ``k = 1..K``).
+    label
+        ``(R,)`` true class of each replicate (1 = present).
+    example
+        If given, a first panel draws replicate ``example`` alone (its true class dotted).
+    axes
+        Axes to draw into: two if ``example`` is given, else one (default: a new figure).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Right (or only) panel: for each filter the mean confidence ``p(MAP class | F)`` over replicates
+        (solid) and the accuracy of the MAP class (dashed) against ``k``.
+    """
+    p = {name: np.asarray(v, dtype=float) for name, v in p_present.items()}
+    y = np.asarray(label).astype(int)
+    shapes = {v.shape for v in p.values()}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"every p_present array must have the same shape (R, K), got {shapes}")
+    n_r, n_k = next(iter(shapes))
+    if y.shape != (n_r,):
+        raise ValueError(f"label must have shape ({n_r},), got {y.shape}")
+    n_panels = 1 if example is None else 2
+    if axes is None:
+        fig, axes = plt.subplots(1, n_panels, figsize=(4.6 * n_panels, 3.6), squeeze=False)
+        fig.set_facecolor("white")
+        axes = axes[0]
+    else:
+        axes = list(np.ravel(axes))
+        if len(axes) != n_panels:
+            raise ValueError(f"need {n_panels} axes, got {len(axes)}")
+        fig = axes[0].figure
+    k = np.arange(1, n_k + 1)
+    if example is not None:
+        ax = axes[0]
+        for i, (name, v) in enumerate(p.items()):
+            ax.plot(k, v[example], "-o", ms=3, color=f"C{i}", label=name)
+        ax.axhline(float(y[example]), ls=":", color="0.3", lw=1, label="true class")
+        ax.set_ylim(-0.03, 1.03)
+        ax.set_xlabel("number of looks at the same view")
+        ax.set_ylabel("p(o = present | F)")
+        ax.set_title("one instance", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    ax = axes[-1]
+    for i, (name, v) in enumerate(p.items()):
+        conf = np.maximum(v, 1.0 - v).mean(axis=0)
+        acc = ((v > 0.5) == (y[:, None] == 1)).mean(axis=0)
+        ax.plot(k, conf, "-o", ms=3, color=f"C{i}", label=f"{name}: mean confidence")
+        ax.plot(k, acc, "--", color=f"C{i}", label=f"{name}: accuracy")
+    ax.set_xlabel("number of looks at the same view")
+    ax.set_ylabel("probability")
+    ax.set_title(f"{n_r} simulated instances", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_expected_entropies(
+    azimuths,
+    estimates: Mapping[str, np.ndarray],
+    *,
+    n_azimuths: int,
+    current: float | None = None,
+    valid=None,
+    ylabel: str = "expected posterior entropy [nats]",
+    ax=None,
+) -> Figure:
+    """Expected posterior entropy (paper eq. 5) of each candidate view, for several estimators.
+
+    Parameters
+    ----------
+    azimuths
+        ``(C,)`` robot azimuth (bins) of each candidate view.
+    estimates
+        Estimator name -> ``(C,)`` expected entropies in nats (e.g. sampled, quadrature, plug-in).
+    n_azimuths
+        Number of azimuth bins ``A`` (to label the axis in degrees).
+    current
+        The entropy of the current belief (drawn as a dotted line), if given.
+    valid
+        ``(C,)`` boolean: candidates that may be chosen; the others (visited views) are not drawn.
+    ylabel
+        Label of the vertical axis.
+    ax
+        Axes to draw into (default: a new figure).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One line per estimator; a star marks each estimator's choice (its argmin over valid candidates).
+    """
+    fig, ax = _new_axes(ax, (5.6, 3.6))
+    deg = np.asarray(azimuths, dtype=float) * 360.0 / n_azimuths
+    ok = np.ones(deg.shape, bool) if valid is None else np.asarray(valid, bool)
+    order = np.argsort(deg)
+    for i, (name, h) in enumerate(estimates.items()):
+        h = np.asarray(h, dtype=float)
+        if h.shape != deg.shape:
+            raise ValueError(f"estimates[{name!r}] has shape {h.shape}, expected {deg.shape}")
+        keep = order[ok[order] & np.isfinite(h[order])]
+        colour = _PLANNER_COLOURS.get(name, f"C{i}")
+        ax.plot(deg[keep], h[keep], "-o", ms=4, color=colour, label=name)
+        if keep.size:
+            best = keep[np.argmin(h[keep])]
+            ax.plot(deg[best], h[best], "*", ms=14, color=colour, mec="black", mew=0.6)
+    if current is not None:
+        ax.axhline(float(current), ls=":", color="0.3", lw=1, label="current entropy")
+    ax.set_xticks(np.arange(n_azimuths) * 360.0 / n_azimuths)
+    ax.set_xlabel("candidate robot azimuth [degrees]  (star: the estimator's choice)")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_sampling_error(n_samples, errors, *, ax=None) -> Figure:
+    """Monte Carlo error of the sampled expected entropy against the number of samples ``M`` (log-log).
+
+    Parameters
+    ----------
+    n_samples
+        ``(J,)`` sample sizes ``M``.
+    errors
+        ``(R, J)`` absolute errors ``|sampled - reference|`` of ``R`` independent estimates per ``M``.
+    ax
+        Axes to draw into (default: a new figure).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Each estimate's error (dots), their root mean square (line) and a ``c / sqrt(M)`` reference
+        fitted to the root mean squares (dashed).
+    """
+    m = np.asarray(n_samples, dtype=float)
+    err = np.asarray(errors, dtype=float)
+    if err.ndim != 2 or err.shape[1] != m.shape[0]:
+        raise ValueError(f"errors must have shape (R, {m.shape[0]}), got {err.shape}")
+    fig, ax = _new_axes(ax, (4.8, 3.6))
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    jitter = np.exp(np.linspace(-0.08, 0.08, err.shape[0]))
+    ax.plot((m[None, :] * jitter[:, None]).ravel(), err.ravel(), ".", color="C0", alpha=0.25, ms=3)
+    ax.plot(m, rms, "-o", color="C0", label="root mean square error")
+    c = float(np.exp(np.mean(np.log(rms) + 0.5 * np.log(m))))
+    ax.plot(m, c / np.sqrt(m), "--", color="0.3", label=r"$c / \sqrt{M}$")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("number of samples M")
+    ax.set_ylabel("|sampled - quadrature| [nats]")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def _step_curve(values):
+    """``(mean, lo, hi)`` from a ``(K,)`` array or a ``(mean, lo, hi)`` tuple (``lo``, ``hi`` may be None)."""
+    if isinstance(values, tuple):
+        if len(values) != 3:
+            raise ValueError(
+                f"a curve with a band is a tuple (mean, lo, hi), got {len(values)} items"
+            )
+        mean, lo, hi = values
+    else:
+        mean, lo, hi = values, None, None
+    mean = np.asarray(mean, dtype=float)
+    if mean.ndim != 1:
+        raise ValueError(f"a curve must have shape (K,) (one value per step), got {mean.shape}")
+    band = None
+    if lo is not None and hi is not None:
+        band = (np.asarray(lo, dtype=float), np.asarray(hi, dtype=float))
+        if band[0].shape != mean.shape or band[1].shape != mean.shape:
+            raise ValueError(f"the band of a curve must have shape {mean.shape}")
+    return mean, band
+
+
+def plot_step_comparison(
+    panels: Mapping[str, Mapping[str, object]],
+    *,
+    ylabel: str,
+    xlabel: str = "number of views",
+    zero_line: bool = False,
+    title: str = "",
+    ax=None,
+) -> Figure:
+    """Per-step curves of several methods (each with an optional 95% band), one panel per entry.
+
+    For quantities indexed by the number of views ``k = 1..K``: the paired difference between two
+    planners at each step (Meger et al. 2010, Fig. 5 compares entropy planning with random views), or
+    the mean belief in the true class under several policies.
+
+    Parameters
+    ----------
+    panels
+        Panel title -> {curve label -> values}. ``values`` is either a ``(K,)`` array of means or a tuple
+        ``(mean, lo, hi)`` of ``(K,)`` arrays, drawn as a line with a shaded band from ``lo`` to ``hi``.
+        Steps are numbered from 1. A label keeps its colour in every panel.
+    ylabel, xlabel
+        Axis labels.
+    zero_line
+        Draw a horizontal line at zero (for differences).
+    title
+        Figure title.
+    ax
+        Axes to draw into when there is exactly one panel (default: a new figure).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    if not panels:
+        raise ValueError("plot_step_comparison needs at least one panel")
+    if ax is not None and len(panels) != 1:
+        raise ValueError(f"ax= draws one panel, but {len(panels)} panels were given")
+    if ax is None:
+        n = len(panels)
+        fig, axes = plt.subplots(1, n, figsize=(4.8 * n, 3.6), sharey=True, squeeze=False)
+        fig.set_facecolor("white")
+        axes = list(axes[0])
+    else:
+        fig, axes = ax.figure, [ax]
+    colours: dict[str, str] = {}
+    for ax_, (panel, curves) in zip(axes, panels.items(), strict=True):
+        for label, values in curves.items():
+            mean, band = _step_curve(values)
+            colour = colours.setdefault(label, _PLANNER_COLOURS.get(label, f"C{len(colours)}"))
+            steps = np.arange(1, mean.shape[0] + 1)
+            ax_.plot(steps, mean, "-o", ms=3, color=colour, label=label)
+            if band is not None:
+                ax_.fill_between(steps, band[0], band[1], color=colour, alpha=0.2, lw=0)
+            ax_.set_xticks(steps)
+        if zero_line:
+            ax_.axhline(0.0, color="0.3", lw=1, ls=":")
+        ax_.set_title(panel, fontsize=10)
+        ax_.set_xlabel(xlabel)
+        ax_.grid(alpha=0.3)
+    axes[0].set_ylabel(ylabel)
+    axes[-1].legend(fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

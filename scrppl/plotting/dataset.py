@@ -23,6 +23,7 @@ __all__ = [
     "contact_sheet",
     "view_sphere",
     "show_image",
+    "show_images",
     "sheet_instances",
     "camera_positions",
     "save_figure",
@@ -84,8 +85,9 @@ def show_image(
     mask: bool = True,
     *,
     title: bool = True,
+    window: float | None = None,
 ) -> Axes:
-    """Draw one image of the dataset, optionally with its object mask and bounding box.
+    """Draw one image of the dataset, optionally with its object mask, bounding box and window.
 
     Parameters
     ----------
@@ -101,6 +103,9 @@ def show_image(
         Tint the object mask.
     title
         Put ``category #instance`` and the view ``(A, H, S)`` (1-based, as in file names) on top.
+    window
+        If given, also draw (dashed, cyan) the proto-object window that the detectors score: the box
+        enlarged by this margin, as cut by :func:`scrppl.detectors.proto_object_window`.
 
     Returns
     -------
@@ -122,6 +127,21 @@ def show_image(
                 (x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor="yellow", lw=1.5
             )
         )
+    if window is not None:
+        from scrppl.detectors.base import proto_object_window
+
+        crop, (wx0, wy0) = proto_object_window(image, dataset.bbox(row), margin=window)
+        ax.add_patch(
+            Rectangle(
+                (wx0 - 0.5, wy0 - 0.5),
+                crop.shape[1],
+                crop.shape[0],
+                fill=False,
+                edgecolor="cyan",
+                lw=1.5,
+                ls="--",
+            )
+        )
     if title:
         ax.set_title(
             f"{row['category']} #{int(row['instance'])}  A{int(row['azimuth']) + 1} "
@@ -131,6 +151,54 @@ def show_image(
     ax.set_xticks([])
     ax.set_yticks([])
     return ax
+
+
+def show_images(
+    dataset: Any,
+    rows: pd.DataFrame,
+    *,
+    ncols: int | None = None,
+    width: float = 2.4,
+    fig: Figure | None = None,
+    **options: Any,
+) -> Figure:
+    """Several images of the dataset side by side, each drawn by :func:`show_image`.
+
+    Parameters
+    ----------
+    dataset
+        A :class:`~scrppl.datasets.core.MultiviewDataset`.
+    rows
+        Rows of ``dataset.index`` (e.g. from ``dataset.select(...)``), shown in order.
+    ncols
+        Images per row of the figure (default: all in one row).
+    width
+        Width of one panel in inches.
+    fig
+        Figure to draw into (default: a new one).
+    **options
+        Passed to :func:`show_image` (``box``, ``mask``, ``title``, ``window``).
+
+    Returns
+    -------
+    The figure, with one axes per row of ``rows`` (unused cells of the last figure row are hidden).
+    """
+    if rows.empty:
+        raise ValueError("no images to show: the selection of rows is empty")
+    n = len(rows)
+    ncols = n if ncols is None else max(1, min(int(ncols), n))
+    nrows = -(-n // ncols)
+    aspect = _aspect(dataset, [rows])
+    if fig is None:
+        fig = plt.figure(
+            figsize=(width * ncols, (width * aspect + 0.35) * nrows), layout="constrained"
+        )
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax, (_, row) in zip(axes, rows.iterrows(), strict=False):
+        show_image(dataset, row, ax=ax, **options)
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return fig
 
 
 def _thumbnail(ax: Axes, dataset: Any, rows: pd.DataFrame) -> None:

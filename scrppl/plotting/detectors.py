@@ -1,7 +1,7 @@
 """Detector figures: the paper's Fig. 1 and a per-detector summary of mean response by azimuth.
 
-Figures are built with :class:`matplotlib.figure.Figure` directly (no pyplot state), so they work in
-scripts, tests and notebooks alike; save them with ``fig.savefig(path)``.
+Figures are drawn with pyplot like every figure of :mod:`scrppl.plotting`, so a notebook shows them; a
+script saves them with ``fig.savefig(path)`` and closes them with ``plt.close(fig)``.
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
@@ -66,7 +67,7 @@ def plot_response_over_azimuth(
             f"responses {responses.shape}, {len(detections)} detection lists"
         )
     deg = np.arange(n) * 360.0 / n if azimuth_degrees is None else np.asarray(azimuth_degrees)
-    fig = Figure(figsize=(max(8.0, 1.6 * n), 5.2), layout="constrained")
+    fig = plt.figure(figsize=(max(8.0, 1.6 * n), 5.2), layout="constrained")
     gs = fig.add_gridspec(2, n, height_ratios=[1.3, 1.0])
     ax = fig.add_subplot(gs[0, :])
     ax.plot(deg, responses, "o-", color="tab:red")
@@ -152,7 +153,7 @@ def plot_mean_response_by_azimuth(
     deg = table["azimuth"].values * 360.0 / table.sizes["azimuth"]
     ncol = min(n_columns, len(targets))
     nrow = int(np.ceil(len(targets) / ncol))
-    fig = Figure(figsize=(3.0 * ncol, 2.4 * nrow), layout="constrained")
+    fig = plt.figure(figsize=(3.0 * ncol, 2.4 * nrow), layout="constrained")
     for k, target in enumerate(targets):
         ax = fig.add_subplot(nrow, ncol, k + 1)
         s = score.sel(target=target)

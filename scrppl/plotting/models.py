@@ -6,19 +6,37 @@ negatives right. The hierarchical model is drawn as its posterior-predictive mea
 (solid red) with a central predictive band (blue, normal approximation with the predictive variance of
 :func:`scrppl.models.response.predictive_moments`: instance effect, noise and posterior uncertainty);
 the paper's Gaussian is overlaid (black dashed mean, dotted band of the same level).
+
+Also here, for chapters 5-6 of the book: the instance effect in the fitting data
+(:func:`plot_instance_effects`), prior predictive checks (:func:`plot_prior_predictive`), ArviZ rank
+plots (:func:`plot_fit_rank`), posterior-predictive densities at chosen views
+(:func:`plot_predictive_densities`) and sampled responses against the predictive density
+(:func:`plot_predictive_sample_check`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 from scipy.stats import norm
 
-from scrppl.models.response import ResponseModel, predictive_moments
+from scrppl.models.data import ViewData
+from scrppl.models.response import ResponseModel, log_prob, predictive_moments
 
-__all__ = ["plot_viewpoint_functions", "plot_fit_trace", "plot_fit_forest", "save_figure"]
+__all__ = [
+    "plot_viewpoint_functions",
+    "plot_fit_trace",
+    "plot_fit_forest",
+    "plot_fit_rank",
+    "plot_instance_effects",
+    "plot_prior_predictive",
+    "plot_predictive_densities",
+    "plot_predictive_sample_check",
+    "save_figure",
+]
 
 
 def _curve(model: ResponseModel, o: int, e: int, s: int, z: float):
@@ -66,7 +84,7 @@ def plot_viewpoint_functions(
         len(rows),
         2,
         subplot_kw={"projection": "polar"},
-        figsize=(8, 3.8 * len(rows)),
+        figsize=(9, 3.8 * len(rows)),  # 9 in: the panels' angle labels do not collide
         squeeze=False,
     )
     for r, (title, model, gauss) in enumerate(rows):
@@ -103,7 +121,7 @@ def plot_viewpoint_functions(
             ax.tick_params(labelsize=7)
         axes[r, 0].set_ylabel(radial_label, labelpad=28)
     axes[0, 1].legend(loc="upper left", bbox_to_anchor=(1.05, 1.0), fontsize=7)
-    fig.tight_layout()
+    fig.tight_layout(w_pad=1.5)
     return fig
 
 
@@ -119,6 +137,379 @@ def plot_fit_forest(posterior, var_names: list[str] | None = None):
     import arviz as az
 
     return az.plot_forest(posterior, var_names=var_names, backend="matplotlib")
+
+
+def plot_fit_rank(posterior, var_names: list[str] | None = None, *, col_wrap: int = 3):
+    """ArviZ rank plot (``az.plot_rank``, matplotlib backend) of a hierarchical fit.
+
+    One panel per scalar parameter: the fractional ranks of each chain's draws, pooled over all chains,
+    as a difference between their empirical CDF and the uniform CDF (Vehtari et al. 2021). Chains that
+    sample the same distribution stay inside the grey simultaneous envelope (``method="envelope"``,
+    after thinning the draws by their effective sample size, so that autocorrelation does not make the
+    envelope too narrow); a chain stuck in one region leaves it.
+
+    Parameters
+    ----------
+    posterior
+        ArviZ ``DataTree`` with a ``posterior`` group.
+    var_names
+        Parameters to show (default: every posterior variable).
+    col_wrap
+        Panels per row.
+
+    Returns
+    -------
+    arviz_plots.PlotCollection (its ``viz["figure"]`` is the matplotlib figure).
+    """
+    import arviz as az
+
+    post = posterior["posterior"].to_dataset()
+    names = list(post.data_vars) if var_names is None else list(var_names)
+    missing = [v for v in names if v not in post.data_vars]
+    if missing:
+        raise ValueError(f"no posterior variables {missing}; the fit has {list(post.data_vars)}")
+    n_panels = sum(
+        int(np.prod([post.sizes[d] for d in post[v].dims if d not in ("chain", "draw")]))
+        for v in names
+    )
+    n_col = max(1, min(col_wrap, n_panels))
+    n_row = -(-n_panels // n_col)
+    return az.plot_rank(
+        posterior,
+        var_names=names,
+        method="envelope",
+        backend="matplotlib",
+        col_wrap=n_col,
+        figure_kwargs={"figsize": (3.0 * n_col, 2.7 * n_row), "layout": "constrained"},
+    )
+
+
+_CLASS_COLOURS = {1: "tab:red", 0: "tab:blue"}
+_CLASS_LABELS = {1: "positives (target present)", 0: "negatives (target absent)"}
+
+
+def _axes(axes, n: int, figsize) -> tuple[plt.Figure, list]:
+    """``n`` panels: the given axes (a sequence of ``n``), or a new white figure."""
+    if axes is None:
+        fig, ax = plt.subplots(1, n, figsize=figsize, squeeze=False)
+        fig.set_facecolor("white")
+        return fig, list(ax[0])
+    axes = list(np.atleast_1d(axes))
+    if len(axes) != n:
+        raise ValueError(f"need {n} axes, got {len(axes)}")
+    return axes[0].figure, axes
+
+
+def _class_view_means(data: ViewData) -> np.ndarray:
+    """Mean response per (class, azimuth, elevation, scale) over the observed instances, ``(2, A, E, S)``."""
+    y, obs, o = np.asarray(data.y), np.asarray(data.observed), np.asarray(data.o)
+    out = np.full((2,) + y.shape[1:], np.nan)
+    for cls in (0, 1):
+        n = obs[o == cls].sum(axis=0)
+        total = np.where(obs[o == cls], y[o == cls], 0.0).sum(axis=0)
+        out[cls] = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+    return out
+
+
+def plot_instance_effects(
+    data: ViewData,
+    *,
+    elevation: int = 0,
+    scale: int = 0,
+    response_label: str = "response",
+    axes=None,
+) -> plt.Figure:
+    """The instance effect in a detector's fitting data: profiles over azimuth and residuals by instance.
+
+    Left: the response of every instance over the azimuth circle at one elevation and scale (thin lines;
+    positives red, negatives blue) with each class's mean per azimuth (thick). Right: each instance's
+    residuals from its class's mean at the same view, all of its observed views in one column
+    (instances sorted by class, then by their mean residual). Without an instance effect every column
+    would scatter around zero; columns shifted as a whole are the shared ``u_i`` of the hierarchical
+    model.
+
+    Parameters
+    ----------
+    data
+        Responses of one detector for one target (:func:`scrppl.models.data.extract_view_data`).
+    elevation, scale
+        The view-grid elevation and scale of the left panel (the right panel uses every view).
+    response_label
+        Y-axis label (e.g. the response transform).
+    axes
+        Two matplotlib axes to draw into (default: a new figure).
+
+    Returns
+    -------
+    The matplotlib figure.
+    """
+    y, obs, o = np.asarray(data.y), np.asarray(data.observed), np.asarray(data.o)
+    fig, (ax_p, ax_r) = _axes(axes, 2, (10.0, 3.8))
+    n_az = y.shape[1]
+    deg = np.arange(n_az + 1) * 360.0 / n_az
+    means = _class_view_means(data)
+    for cls in (0, 1):
+        for i in np.flatnonzero(o == cls):
+            line = np.where(obs[i, :, elevation, scale], y[i, :, elevation, scale], np.nan)
+            ax_p.plot(deg, np.r_[line, line[0]], color=_CLASS_COLOURS[cls], lw=0.8, alpha=0.45)
+        m = means[cls, :, elevation, scale]
+        ax_p.plot(deg, np.r_[m, m[0]], color=_CLASS_COLOURS[cls], lw=2.5, label=_CLASS_LABELS[cls])
+    ax_p.set_xticks(deg if n_az <= 12 else deg[::2])
+    ax_p.set_xlim(deg[0], deg[-1])
+    ax_p.set_xlabel("relative azimuth (degrees)")
+    ax_p.set_ylabel(response_label)
+    ax_p.set_title("one line per instance; class mean thick", fontsize=9)
+    ax_p.legend(fontsize=7, loc="best")
+
+    resid = np.where(obs, y - means[o], np.nan).reshape(len(o), -1)
+    order = sorted(range(len(o)), key=lambda i: (-o[i], np.nanmean(resid[i])))
+    for x, i in enumerate(order):
+        r = resid[i][np.isfinite(resid[i])]
+        ax_r.plot(np.full(r.shape, x), r, "o", ms=3, color=_CLASS_COLOURS[int(o[i])], alpha=0.6)
+        ax_r.plot([x - 0.35, x + 0.35], [r.mean()] * 2, color="black", lw=1.5)
+    ax_r.axhline(0.0, color="0.5", lw=0.8, ls="--")
+    ax_r.set_xticks([])
+    ax_r.set_xlabel("instance (positives first; black: mean over its views)")
+    ax_r.set_ylabel("residual from the class mean at the view")
+    ax_r.set_title("residuals grouped by instance", fontsize=9)
+    return fig
+
+
+def plot_prior_predictive(
+    draws: Mapping[str, np.ndarray],
+    data: ViewData,
+    *,
+    n_lines: int = 40,
+    elevation: int = 0,
+    scale: int = 0,
+    response_label: str = "response",
+    axes=None,
+) -> plt.Figure:
+    """A prior predictive check of the hierarchical viewpoint model against the fitting data.
+
+    Left: ``n_lines`` prior draws of the mean profile ``mu[o, a]`` over the azimuth circle per class
+    (thin lines) with the observed class means per azimuth (markers). Right: the distribution of the
+    simulated responses at the observed views (all prior draws) against the observed responses.
+
+    Parameters
+    ----------
+    draws
+        From :func:`scrppl.models.hierarchical.prior_predictive`: ``mu (n, 2, A, E, S)`` and
+        ``y (n, I, A, E, S)`` (NaN at unobserved views).
+    data
+        The fitting data the draws were simulated for.
+    n_lines
+        Prior draws of ``mu`` drawn per class.
+    elevation, scale
+        The view-grid elevation and scale of the left panel.
+    response_label
+        Axis label of the response (e.g. the response transform).
+    axes
+        Two matplotlib axes to draw into (default: a new figure).
+
+    Returns
+    -------
+    The matplotlib figure.
+    """
+    mu, sim = np.asarray(draws["mu"]), np.asarray(draws["y"])
+    if mu.ndim != 5 or sim.shape[1:] != np.shape(data.y):
+        raise ValueError(
+            f"draws do not match the data: mu {mu.shape} (expected (n, 2, A, E, S)), "
+            f"y {sim.shape} (expected (n,) + {np.shape(data.y)})"
+        )
+    fig, (ax_p, ax_h) = _axes(axes, 2, (10.0, 3.8))
+    n_az = mu.shape[2]
+    deg = np.arange(n_az + 1) * 360.0 / n_az
+    means = _class_view_means(data)
+    k = min(n_lines, mu.shape[0])
+    for cls in (1, 0):
+        curves = mu[:k, cls, :, elevation, scale]
+        for c in curves:
+            ax_p.plot(deg, np.r_[c, c[0]], color=_CLASS_COLOURS[cls], lw=0.6, alpha=0.35)
+        m = means[cls, :, elevation, scale]
+        ax_p.plot(
+            deg[:-1],
+            m,
+            "o",
+            color=_CLASS_COLOURS[cls],
+            mec="black",
+            ms=6,
+            label=f"observed mean, {_CLASS_LABELS[cls].split(' ')[0]}",
+        )
+    ax_p.set_xticks(deg if n_az <= 12 else deg[::2])
+    ax_p.set_xlim(deg[0], deg[-1])
+    ax_p.set_xlabel("relative azimuth (degrees)")
+    ax_p.set_ylabel(response_label)
+    ax_p.set_title(f"{k} prior draws of the mean profile per class", fontsize=9)
+    ax_p.legend(fontsize=7, loc="best")
+
+    simulated = sim[np.isfinite(sim)]
+    observed = np.asarray(data.y)[np.asarray(data.observed)]
+    lo, hi = np.quantile(np.r_[simulated, observed], [0.005, 0.995])
+    bins = np.linspace(lo, hi, 60)
+    ax_h.hist(simulated, bins=bins, density=True, color="0.6", alpha=0.7, label="prior predictive")
+    ax_h.hist(
+        observed,
+        bins=bins,
+        density=True,
+        histtype="step",
+        color="black",
+        lw=1.5,
+        label="observed responses",
+    )
+    ax_h.set_xlabel(response_label)
+    ax_h.set_ylabel("density")
+    ax_h.set_title("simulated vs observed responses", fontsize=9)
+    ax_h.legend(fontsize=7, loc="best")
+    return fig
+
+
+def _density(model: ResponseModel, grid: np.ndarray, o: int, a: int, e: int, s: int) -> np.ndarray:
+    return np.exp(np.asarray(log_prob(model, grid, o, a, e, s), dtype=float))
+
+
+def plot_predictive_densities(
+    models: Mapping[str, ResponseModel],
+    views: Mapping[str, tuple[int, int, int]],
+    *,
+    responses: Mapping[str, Mapping[int, np.ndarray]] | None = None,
+    n_grid: int = 400,
+    response_label: str = "response",
+    axes=None,
+) -> plt.Figure:
+    """Posterior-predictive densities ``p(f | o, a, e, s)`` of a *new* instance at a few views.
+
+    One panel per view; in each, the density of every model (line style: the first solid, the next
+    dashed, then dotted) for positives (red) and negatives (blue), computed with
+    :func:`scrppl.models.response.log_prob`; optionally the responses of held-out instances at that
+    view as tick marks along the bottom.
+
+    Parameters
+    ----------
+    models
+        ``{label: ResponseModel}``, e.g. the hierarchical posterior predictive and the paper's Gaussian.
+    views
+        ``{panel title: (a, e, s)}``: relative azimuth, elevation and scale indices.
+    responses
+        ``{panel title: {o: responses}}`` to mark (e.g. held-out responses at that view).
+    n_grid
+        Points of the response grid.
+    response_label
+        X-axis label (e.g. the response transform).
+    axes
+        One matplotlib axis per view (default: a new figure).
+
+    Returns
+    -------
+    The matplotlib figure.
+    """
+    if not models or not views:
+        raise ValueError("plot_predictive_densities needs at least one model and one view")
+    styles = ["-", "--", ":", "-."]
+    fig, axs = _axes(axes, len(views), (5.0 * len(views), 3.6))
+    lo, hi = np.inf, -np.inf
+    for model in models.values():
+        for a, e, s in views.values():
+            for o in (0, 1):
+                m, v = predictive_moments(model, o, a, e, s)
+                sd = float(np.sqrt(v))
+                lo, hi = min(lo, float(m) - 4 * sd), max(hi, float(m) + 4 * sd)
+    grid = np.linspace(lo, hi, n_grid)
+    for ax, (title, (a, e, s)) in zip(axs, views.items(), strict=True):
+        for k, (label, model) in enumerate(models.items()):
+            for o in (1, 0):
+                ax.plot(
+                    grid,
+                    _density(model, grid, o, a, e, s),
+                    color=_CLASS_COLOURS[o],
+                    ls=styles[k % len(styles)],
+                    lw=1.8 if k == 0 else 1.3,
+                    label=f"{label}, {'present' if o else 'absent'}",
+                )
+        marks = (responses or {}).get(title, {})
+        for o, values in marks.items():
+            values = np.asarray(values, dtype=float)
+            values = values[np.isfinite(values)]
+            ax.plot(
+                values,
+                np.zeros_like(values),
+                "|",
+                color=_CLASS_COLOURS[int(o)],
+                ms=14,
+                mew=1.5,
+                clip_on=False,
+                label=f"held-out responses, {'present' if int(o) else 'absent'}",
+            )
+        ax.set_ylim(bottom=0.0)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel(response_label)
+        ax.set_ylabel("predictive density")
+    axs[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    fig.tight_layout()
+    return fig
+
+
+def plot_predictive_sample_check(
+    samples,
+    model: ResponseModel,
+    o: int,
+    a: int,
+    e: int = 0,
+    s: int = 0,
+    *,
+    bins: int = 60,
+    response_label: str = "response",
+    ax=None,
+) -> plt.Figure:
+    """Responses sampled from a posterior predictive against its density.
+
+    A histogram (density scale) of ``samples`` -- e.g. from :func:`scrppl.models.response.sample` at
+    ``(o, a, e, s)`` -- with the predictive density of :func:`scrppl.models.response.log_prob` at the
+    same state and view drawn over it: the two must agree. The range drawn is the samples' central
+    99.8%; the histogram is normalised over the samples in that range (0.2% high).
+
+    Parameters
+    ----------
+    samples
+        Sampled responses, any shape (flattened).
+    model
+        The response model they were drawn from.
+    o, a, e, s
+        Class and view indices.
+    bins
+        Histogram bins.
+    response_label
+        X-axis label.
+    ax
+        A matplotlib axis to draw into (default: a new figure).
+
+    Returns
+    -------
+    The matplotlib figure.
+    """
+    x = np.asarray(samples, dtype=float).ravel()
+    fig, (ax,) = _axes(None if ax is None else [ax], 1, (5.0, 3.4))
+    lo, hi = np.quantile(x, [0.001, 0.999])  # the central 99.8%: long tails would squash the figure
+    ax.hist(
+        x,
+        bins=bins,
+        range=(lo, hi),
+        density=True,
+        color="0.7",
+        label=f"{x.size:,} sampled responses",
+    )
+    grid = np.linspace(lo, hi, 400)
+    ax.plot(
+        grid,
+        _density(model, grid, o, a, e, s),
+        color=_CLASS_COLOURS.get(int(o), "black"),
+        lw=2,
+        label="predictive density (log_prob)",
+    )
+    ax.set_xlabel(response_label)
+    ax.set_ylabel("density")
+    ax.legend(fontsize=7, loc="best")
+    return fig
 
 
 def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:

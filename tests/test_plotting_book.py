@@ -1,0 +1,244 @@
+"""Figures added for the book chapters (scrppl.plotting)."""
+
+import numpy as np
+import pytest
+
+# --- chapters 7-8: repeated views, expected entropy per candidate, sampling error -------------------
+
+
+def test_plot_repeated_view_panels_and_axes():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_repeated_view
+
+    rng = np.random.default_rng(0)
+    label = rng.integers(0, 2, size=20)
+    p = {"naive Bayes": rng.uniform(size=(20, 6)), "instance-aware": rng.uniform(size=(20, 6))}
+    fig = plot_repeated_view(p, label, example=3)
+    assert len(fig.axes) == 2
+    assert len(fig.axes[1].lines) == 4  # confidence and accuracy per filter
+    plt.close(fig)
+    fig, ax = plt.subplots()
+    assert plot_repeated_view(p, label, axes=[ax]) is fig
+    plt.close(fig)
+    with pytest.raises(ValueError, match="same shape"):
+        plot_repeated_view({"a": np.zeros((2, 3)), "b": np.zeros((2, 4))}, [0, 1])
+
+
+def test_plot_expected_entropies_skips_invalid_and_marks_choice():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_expected_entropies
+
+    h = {"quadrature": np.array([1.0, 0.5, 0.7, np.inf]), "plug_in": np.array([1.2, 0.9, 0.6, 2.0])}
+    valid = np.array([False, True, True, True])
+    fig = plot_expected_entropies(np.arange(4), h, n_azimuths=4, current=1.5, valid=valid)
+    ax = fig.axes[0]
+    quad_line, quad_star = ax.lines[0], ax.lines[1]
+    np.testing.assert_allclose(quad_line.get_xdata(), [90.0, 180.0])  # invalid and inf dropped
+    np.testing.assert_allclose(quad_star.get_xdata(), [90.0])  # argmin among valid
+    np.testing.assert_allclose(ax.lines[3].get_xdata(), [180.0])
+    plt.close(fig)
+    with pytest.raises(ValueError, match="shape"):
+        plot_expected_entropies(np.arange(4), {"x": np.zeros(3)}, n_azimuths=4)
+
+
+def test_plot_sampling_error_reference_slope():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_sampling_error
+
+    m = np.array([16, 64, 256, 1024])
+    errors = np.abs(np.random.default_rng(1).normal(size=(30, 4))) / np.sqrt(m)
+    fig = plot_sampling_error(m, errors)
+    ax = fig.axes[0]
+    ref = ax.lines[2].get_ydata()
+    np.testing.assert_allclose(ref[:-1] / ref[1:], 2.0)  # c / sqrt(M), M growing fourfold
+    assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
+    plt.close(fig)
+    with pytest.raises(ValueError, match="shape"):
+        plot_sampling_error(m, errors[:, :3])
+
+
+# --- chapters 9-10: per-step comparisons (paired differences, policies) ----------------------------
+
+
+def test_plot_step_comparison_panels_bands_and_colours():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_step_comparison
+
+    k = 5
+    mean = np.linspace(-0.1, 0.0, k)
+    panels = {
+        "160 trials": {"a": (mean, mean - 0.05, mean + 0.05), "b": np.zeros(k)},
+        "10,000 trials": {"b": np.ones(k), "a": (mean, mean - 0.01, mean + 0.01)},
+    }
+    fig = plot_step_comparison(panels, ylabel="difference", zero_line=True)
+    assert len(fig.axes) == 2
+    left, right = fig.axes
+    np.testing.assert_allclose(left.lines[0].get_xdata(), np.arange(1, k + 1))
+    assert len(left.collections) == 1  # one band: curve "b" has none
+    # a label keeps its colour across panels, whatever the order of the curves
+    assert left.lines[0].get_color() == right.lines[1].get_color()
+    assert left.lines[1].get_color() == right.lines[0].get_color()
+    assert fig.get_facecolor()[:3] == (1.0, 1.0, 1.0)
+    plt.close(fig)
+    fig, ax = plt.subplots()
+    assert plot_step_comparison({"one": {"a": mean}}, ylabel="y", ax=ax) is fig
+    with pytest.raises(ValueError, match="one panel"):
+        plot_step_comparison(panels, ylabel="y", ax=ax)
+    plt.close(fig)
+    with pytest.raises(ValueError, match="shape"):
+        plot_step_comparison({"p": {"a": (mean, mean[:2], mean)}}, ylabel="y")
+
+
+# --- chapter 4: the paper's Figs. 2-3 ----------------------------------------------------------------
+
+
+def test_plot_viewpoint_functions_angle_labels_do_not_collide():
+    import jax.numpy as jnp
+    import matplotlib.pyplot as plt
+
+    from scrppl.models import ResponseModel
+    from scrppl.plotting import plot_viewpoint_functions
+
+    mu = jnp.asarray(np.linspace(-1.0, 1.0, 2 * 8).reshape(1, 2, 8, 1, 1))
+    model = ResponseModel(mu, 0.1 + 0 * mu, jnp.zeros((1, 2)))
+    fig = plot_viewpoint_functions([("a", model, None), ("b", model, model)])
+    assert len(fig.axes) == 4
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    # the 0-degree label of a left panel must not overlap the 180-degree label of the right panel
+    for row in range(2):
+        left, right = fig.axes[2 * row], fig.axes[2 * row + 1]
+        zero = left.get_xticklabels()[0].get_window_extent(renderer)
+        back = right.get_xticklabels()[4].get_window_extent(renderer)
+        assert zero.x1 < back.x0
+    plt.close(fig)
+
+
+# --- chapters 5-6: instance effects, prior/posterior predictive checks, rank plots --------------------
+
+
+def _small_view_data(rng, n_pos=3, n_neg=4, n_az=8):
+    from scrppl.models.data import make_view_data
+
+    o = np.r_[np.ones(n_pos, int), np.zeros(n_neg, int)]
+    y = (
+        rng.normal(size=(len(o), n_az, 1, 1))
+        + o[:, None, None, None]
+        + rng.normal(size=len(o))[:, None, None, None]
+    )
+    return make_view_data(y, o, np.zeros(len(o), int))
+
+
+def _small_response_model(rng, n_draws=5, n_az=8):
+    import jax.numpy as jnp
+
+    from scrppl.models import ResponseModel
+
+    mu = rng.normal(size=(n_draws, 2, n_az, 1, 1)) + np.array([0.0, 2.0])[None, :, None, None, None]
+    sigma = rng.uniform(0.3, 0.8, size=mu.shape)
+    tau = rng.uniform(0.1, 0.5, size=(n_draws, 2))
+    return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
+
+
+def test_plot_instance_effects_lines_and_columns(rng):
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_instance_effects
+
+    data = _small_view_data(rng)
+    n_inst = len(data.o)
+    fig = plot_instance_effects(data)
+    left, right = fig.axes
+    assert len(left.lines) == n_inst + 2  # one per instance, one class mean per class
+    assert len(right.lines) == 2 * n_inst + 1  # residual dots, their mean, and the zero line
+    # a residual column's black bar sits at the mean of its dots
+    dots, bar = right.lines[0], right.lines[1]
+    np.testing.assert_allclose(bar.get_ydata()[0], np.mean(dots.get_ydata()))
+    assert fig.get_facecolor()[:3] == (1.0, 1.0, 1.0)
+    plt.close(fig)
+    fig, axes = plt.subplots(1, 2)
+    assert plot_instance_effects(data, axes=axes) is fig
+    with pytest.raises(ValueError, match="need 2 axes"):
+        plot_instance_effects(data, axes=axes[:1])
+    plt.close(fig)
+
+
+def test_plot_prior_predictive_draws_and_mismatch(rng):
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_prior_predictive
+
+    data = _small_view_data(rng)
+    n = 12
+    draws = {
+        "mu": rng.normal(size=(n, 2, 8, 1, 1)),
+        "y": rng.normal(size=(n,) + data.y.shape),
+    }
+    fig = plot_prior_predictive(draws, data, n_lines=5)
+    left, right = fig.axes
+    assert len(left.lines) == 2 * 5 + 2  # 5 prior profiles per class + observed means
+    assert len(right.patches) > 0
+    plt.close(fig)
+    with pytest.raises(ValueError, match="do not match"):
+        plot_prior_predictive({"mu": draws["mu"], "y": draws["y"][:, :2]}, data)
+
+
+def test_plot_predictive_densities_are_normalised(rng):
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_predictive_densities
+
+    model = _small_response_model(rng)
+    views = {"a": (0, 0, 0), "b": (3, 0, 0)}
+    marks = {"a": {0: np.array([0.1, -0.2]), 1: np.array([2.0])}}
+    fig = plot_predictive_densities({"m": model, "twice": model}, views, responses=marks)
+    assert len(fig.axes) == 2
+    first = fig.axes[0]
+    curves = [ln for ln in first.lines if ln.get_linestyle() != "None"]
+    assert len(curves) == 4  # two models x two classes
+    for ln in curves:  # each curve is a density: it integrates to one over the grid drawn
+        x, y = ln.get_xdata(), ln.get_ydata()
+        np.testing.assert_allclose(np.sum((y[1:] + y[:-1]) / 2 * np.diff(x)), 1.0, atol=2e-3)
+    assert len(first.lines) == 4 + 2  # and the held-out marks of both classes
+    plt.close(fig)
+    with pytest.raises(ValueError, match="at least one"):
+        plot_predictive_densities({}, views)
+
+
+def test_plot_predictive_sample_check_draws_log_prob(key, rng):
+    import matplotlib.pyplot as plt
+
+    from scrppl.models import log_prob, sample
+    from scrppl.plotting import plot_predictive_sample_check
+
+    model = _small_response_model(rng)
+    x = sample(key, model, 1, 2, 0, 0, shape=(2000,))
+    fig, ax = plt.subplots()
+    assert plot_predictive_sample_check(x, model, 1, 2, ax=ax) is fig
+    (curve,) = ax.lines
+    want = np.exp(np.asarray(log_prob(model, curve.get_xdata(), 1, 2, 0, 0)))
+    np.testing.assert_allclose(curve.get_ydata(), want, rtol=1e-5)
+    plt.close(fig)
+
+
+def test_plot_fit_rank_panels(rng):
+    import arviz as az
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_fit_rank
+
+    tree = az.from_dict(
+        {"posterior": {"x": rng.normal(size=(4, 200, 2)), "y": rng.normal(size=(4, 200))}},
+        dims={"x": ["class"]},
+        coords={"class": ["absent", "present"]},
+    )
+    pc = plot_fit_rank(tree, var_names=["x", "y"], col_wrap=2)
+    fig = pc.viz["figure"].item()
+    assert len([ax for ax in fig.axes if ax.has_data()]) == 3  # x[absent], x[present], y
+    plt.close("all")
+    with pytest.raises(ValueError, match="no posterior variables"):
+        plot_fit_rank(tree, var_names=["z"])
