@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
-from scrppl.models.response import ResponseModel
+from scrppl._checks import is_concrete
+from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.views import check_view_indices
 
 __all__ = [
@@ -56,6 +57,8 @@ __all__ = [
     "view_parameters",
     "predictive_mixture",
     "mixture_posterior",
+    "check_belief",
+    "check_view",
     "FILTERS",
     "OBJECTIVES",
 ]
@@ -116,15 +119,15 @@ class Mixture(NamedTuple):
 
 
 # ------------------------------------------------------------------------------------------------
-# input checks (only on concrete values; inside jit they are skipped)
+# input checks: shapes always (also while tracing), values only when concrete (skipped inside jit)
 
 
-def _is_concrete(*xs) -> bool:
-    return not any(isinstance(x, jax.core.Tracer) for x in xs)
+def check_view(model: ResponseModel, phi, e=0, s=0) -> None:
+    """Raise ``ValueError`` naming the axis if robot view ``(phi, e, s)`` lies outside the model's grid.
 
-
-def _check_view(model: ResponseModel, phi, e, s) -> None:
-    if not _is_concrete(phi, e, s):
+    JAX would clamp an out-of-range index and score another view. Skipped for traced values.
+    """
+    if not is_concrete(phi, e, s):
         return
     check_view_indices(
         tuple(model.mu.shape[2:5]),
@@ -136,12 +139,46 @@ def _check_view(model: ResponseModel, phi, e, s) -> None:
     )
 
 
+def check_belief(model: ResponseModel, belief) -> None:
+    """Raise ``ValueError`` unless ``belief`` is a belief over this model's classes and poses (and draws).
+
+    A :class:`NaiveBayesBelief` must be ``(O, A)``; an :class:`InstanceBelief` ``(O, A)`` and ``(N, O, A)``
+    with the model's ``N`` posterior draws. A belief made with a model of another view grid, class set
+    or number of draws would otherwise be broadcast or indexed silently. Only shapes are used, so the
+    check also runs while tracing.
+    """
+    n, o, a = model.mu.shape[:3]
+    if isinstance(belief, NaiveBayesBelief):
+        want = {"log_belief": (o, a)}
+    elif isinstance(belief, InstanceBelief):
+        want = dict.fromkeys(("u_mean", "u_var", "log_evidence"), (n, o, a)) | {"log_prior": (o, a)}
+    else:
+        raise ValueError(f"not a belief: {type(belief).__name__}")
+    for field, shape in want.items():
+        got = np.shape(getattr(belief, field))
+        if got != shape:
+            dims = "(O, A)" if len(shape) == 2 else "(N, O, A)"
+            raise ValueError(
+                f"{type(belief).__name__}.{field} has shape {got} but the response model has "
+                f"{dims} = {shape}: the belief was made with another model (another view grid, "
+                "class set or number of posterior draws)"
+            )
+
+
 def _check_response(f) -> None:
-    if _is_concrete(f) and not np.all(np.isfinite(np.asarray(f))):
+    if is_concrete(f) and not np.all(np.isfinite(np.asarray(f))):
         raise ValueError(
             f"response f={np.asarray(f)!r} is not finite (a missing view?); missing views must be "
             "excluded from the candidates, never used as numbers"
         )
+
+
+def _check_update(model: ResponseModel, belief, f, phi, e, s) -> None:
+    """Everything a filter update is given: the model, the belief against it, the view, the response."""
+    check_response_model(model)
+    check_belief(model, belief)
+    check_view(model, phi, e, s)
+    _check_response(f)
 
 
 def _log_prior(prior, shape) -> jax.Array:
@@ -150,7 +187,7 @@ def _log_prior(prior, shape) -> jax.Array:
     prior = jnp.asarray(prior)
     if prior.shape != tuple(shape):
         raise ValueError(f"prior must have shape (O, A) = {tuple(shape)}, got {prior.shape}")
-    if _is_concrete(prior) and (
+    if is_concrete(prior) and (
         np.any(np.asarray(prior) < 0) or not np.isfinite(np.asarray(prior)).all()
     ):
         raise ValueError("prior must be finite and non-negative")
@@ -206,6 +243,7 @@ def naive_bayes_init(model: ResponseModel, prior=None) -> NaiveBayesBelief:
     prior
         Optional unnormalised prior ``p(o, theta)``, shape ``(O, A)``.
     """
+    check_response_model(model)
     shape = (model.mu.shape[1], model.mu.shape[2])
     return NaiveBayesBelief(_log_prior(prior, shape))
 
@@ -242,8 +280,7 @@ def naive_bayes_update(
     phi, e, s
         Robot azimuth, elevation and scale where ``f`` was observed.
     """
-    _check_view(model, phi, e, s)
-    _check_response(f)
+    _check_update(model, belief, f, phi, e, s)
     logp = belief.log_belief + naive_bayes_log_likelihood(model, f, phi, e, s)
     return NaiveBayesBelief(logp - logsumexp(logp))
 
@@ -262,6 +299,7 @@ def instance_init(model: ResponseModel, prior=None) -> InstanceBelief:
     prior
         Optional unnormalised prior ``p(o, theta)``, shape ``(O, A)``.
     """
+    check_response_model(model)
     n, o, a = model.mu.shape[:3]
     log_prior = _log_prior(prior, (o, a))
     var = jnp.broadcast_to((jnp.asarray(model.tau) ** 2)[:, :, None], (n, o, a)).astype(
@@ -293,8 +331,7 @@ def instance_update(
     phi, e, s
         Robot azimuth, elevation and scale where ``f`` was observed.
     """
-    _check_view(model, phi, e, s)
-    _check_response(f)
+    _check_update(model, belief, f, phi, e, s)
     mu, sigma2, _ = view_parameters(model, phi, e, s)
     m, v = belief.u_mean, belief.u_var
     pred_var = v + sigma2
@@ -425,6 +462,9 @@ def predictive_mixture(model: ResponseModel, belief, phi, e=0, s=0) -> Mixture:
     Mixture
         Arrays of shape ``(N, O, A)``.
     """
+    check_response_model(model)
+    check_belief(model, belief)
+    check_view(model, phi, e, s)
     mu, sigma2, tau2 = view_parameters(model, phi, e, s)
     n = mu.shape[0]
     if isinstance(belief, NaiveBayesBelief):

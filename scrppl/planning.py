@@ -8,8 +8,9 @@ set of candidate robot views, and returns the view to visit next.
   ``(state, response)`` from the current belief and the posterior predictive, update, and average the
   posterior entropy; take the argmin. The same random numbers are used for every candidate (common
   random numbers), so comparisons between candidates are less noisy than the estimates themselves.
-* ``"quadrature"`` -- the exact expected entropy, by Gauss-Hermite quadrature over the 1-D response for
-  each component of the predictive mixture: the value the sampled planner converges to as ``M`` grows.
+* ``"quadrature"`` -- the expected entropy by Gauss-Hermite quadrature over the 1-D response for each
+  component of the predictive mixture: the value the sampled planner converges to as ``M`` grows, up to
+  the quadrature error (:func:`quadrature_expected_entropy` states it).
 * ``"plug_in"`` -- updates with the *expected* response only. The paper notes that this gives a biased
   estimate of the entropy; it is kept to demonstrate that bias.
 
@@ -36,9 +37,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
-from scrppl.belief import OBJECTIVES, Mixture, predictive_mixture
-from scrppl.models.response import ResponseModel
-from scrppl.views import angular_distance
+from scrppl._checks import is_concrete
+from scrppl.belief import OBJECTIVES, Mixture, check_belief, predictive_mixture
+from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.views import angular_distance, check_mask_shape, check_view_array
 
 __all__ = [
     "PLANNERS",
@@ -52,6 +54,7 @@ __all__ = [
     "candidate_mixtures",
     "expected_entropies",
     "choose_view",
+    "check_planner_inputs",
 ]
 
 #: Planner names accepted by :func:`choose_view`.
@@ -65,6 +68,46 @@ _LOG_2PI = math.log(2.0 * math.pi)
 def _check_objective(objective: str) -> None:
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
+
+
+def check_planner_inputs(
+    model: ResponseModel, belief=None, *, views=None, current=None, visited=None, available=None
+) -> None:
+    """Check what a planner is given; the public planners call this before their compiled code.
+
+    Raises ``ValueError`` naming the problem: a malformed model
+    (:func:`~scrppl.models.response.check_response_model`), a belief of another model
+    (:func:`~scrppl.belief.check_belief`), candidate ``views`` ``(C, 3)`` or a ``current`` view ``(3,)``
+    outside the model's grid, ``visited``/``available`` masks not of the grid's shape ``(A, E, S)``.
+    JAX would clamp out-of-range indices and silently score views that do not exist. Shapes are checked
+    also while tracing; values only for concrete arrays (inside ``jit`` or ``vmap`` they are skipped).
+    Arguments left ``None`` are not checked.
+    """
+    check_response_model(model)
+    if belief is not None:
+        check_belief(model, belief)
+    grid = tuple(model.mu.shape[2:5])
+    if visited is not None:
+        check_mask_shape(visited, grid, name="visited mask")
+    if available is not None:
+        check_mask_shape(available, grid, name="available mask")
+    if views is not None:
+        _check_views(grid, views, "candidate views", ndim=2)
+    if current is not None:
+        _check_views(grid, current, "current view", ndim=1)
+
+
+def _check_views(grid, views, name: str, ndim: int) -> None:
+    """``(C, 3)`` candidates (``ndim=2``) or one ``(3,)`` view inside the grid (values when concrete)."""
+    concrete = is_concrete(views)
+    if concrete:
+        views = np.asarray(views)
+    shape = np.shape(views)
+    if len(shape) != ndim or shape[-1] != 3:
+        want = "(C, 3)" if ndim == 2 else "(3,)"
+        raise ValueError(f"{name} must have shape {want}, rows (phi, e, s), got {shape}")
+    if concrete:
+        check_view_array(grid, views, name=name)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -95,6 +138,10 @@ def candidate_views(
     valid
         Boolean ``(C,)``: not visited and available.
     """
+    if len(np.shape(visited)) != 3:
+        raise ValueError(f"visited mask must have shape (A, E, S), got {np.shape(visited)}")
+    check_mask_shape(available, np.shape(visited), name="available mask", where="the visited mask")
+    _check_views(np.shape(visited), current, "current view", ndim=1)
     visited = jnp.asarray(visited, bool)
     available = jnp.asarray(available, bool)
     n_a, n_e, n_s = visited.shape
@@ -427,12 +474,19 @@ def sampled_expected_entropy(
 def quadrature_expected_entropy(
     mixture: Mixture, objective: str = "joint", order: int = 32
 ) -> jax.Array:
-    """Exact expected posterior entropy by Gauss-Hermite quadrature over the response.
+    """Expected posterior entropy by Gauss-Hermite quadrature over the response.
 
     ``E_f[H] = sum_k w_k integral Normal(f; m_k, v_k) H(f) df`` with ``order`` nodes per mixture component
-    ``k = (n, o, theta)``: ``f = m_k + sqrt(2 v_k) x_q``, weights ``w_q / sqrt(pi)``. ``H(f)`` is smooth,
-    so a few dozen nodes give the value to ~1e-4 nats on the problems tested. Cost
+    ``k = (n, o, theta)``: ``f = m_k + sqrt(2 v_k) x_q``, weights ``w_q / sqrt(pi)``. Cost
     ``O((N O A)^2 * order)``; components are processed one at a time to bound memory.
+
+    Accuracy, measured against a fine-grid integral over ``f`` (``tests/test_planning.py``; class means
+    spread by 1-4, beliefs after up to 12 responses). At the default ``order = 32`` the error was below
+    5e-4 nats when every noise sd was at least 0.3, and also with sds down to 0.05 for models with several
+    posterior draws and an instance effect. For the paper's Gaussian (one draw, ``tau = 0``) with sds down
+    to 0.05 it reached 2e-2 nats, and fell only slowly with the order (5e-3 at ``order = 128``, 2e-3 at
+    256): a component much narrower than the spacing of the other components' means makes ``H(f)`` change
+    in steps of its width, which the nodes placed for the wide components resolve poorly.
 
     Parameters
     ----------
@@ -478,11 +532,11 @@ def plug_in_expected_entropy(mixture: Mixture, objective: str = "joint") -> jax.
 
 def candidate_mixtures(model: ResponseModel, belief, views) -> Mixture:
     """Predictive mixtures for each candidate view, arrays ``(C, N, O, A)`` (``views``: ``(C, 3)``)."""
+    check_planner_inputs(model, belief, views=views)
     views = jnp.asarray(views)
     return jax.vmap(lambda v: predictive_mixture(model, belief, v[0], v[1], v[2]))(views)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def expected_entropies(
     key: jax.Array,
     model: ResponseModel,
@@ -518,6 +572,13 @@ def expected_entropies(
     order
         Gauss-Hermite order for the quadrature planner.
     """
+    check_planner_inputs(model, belief, views=views)
+    return _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
+
+
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
+def _expected_entropies(key, model, belief, views, planner, objective, n_samples, order):
+    """:func:`expected_entropies` without the input checks (compiled)."""
     _check_objective(objective)
     mixtures = candidate_mixtures(model, belief, views)
     if planner == "sampled":
@@ -534,10 +595,6 @@ def expected_entropies(
     )
 
 
-@partial(
-    jax.jit,
-    static_argnames=("planner", "objective", "mode", "n_samples", "order", "max_candidates"),
-)
 def choose_view(
     key: jax.Array,
     model: ResponseModel,
@@ -594,6 +651,48 @@ def choose_view(
     scores
         Score of each candidate ``(C,)`` (``+inf`` for invalid ones; zeros for ``"random"``).
     """
+    # values here, once per call; the shapes of the belief and the masks (known while tracing) are
+    # checked when the compiled function is traced, which costs nothing on later calls
+    check_response_model(model)
+    _check_views(model.mu.shape[2:5], current, "current view", ndim=1)
+    return _choose_view(
+        key,
+        model,
+        belief,
+        current,
+        visited,
+        available,
+        planner=planner,
+        objective=objective,
+        mode=mode,
+        n_samples=n_samples,
+        order=order,
+        motion_cost=motion_cost,
+        max_candidates=max_candidates,
+    )
+
+
+@partial(
+    jax.jit,
+    static_argnames=("planner", "objective", "mode", "n_samples", "order", "max_candidates"),
+)
+def _choose_view(
+    key,
+    model,
+    belief,
+    current,
+    visited,
+    available,
+    planner,
+    objective,
+    mode,
+    n_samples,
+    order,
+    motion_cost,
+    max_candidates,
+):
+    """:func:`choose_view` without the input checks (compiled)."""
+    check_planner_inputs(model, belief, current=current, visited=visited, available=available)
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
     views, valid = candidate_views(current, visited, available, mode)
@@ -641,7 +740,7 @@ def choose_view(
 def _scores(
     key, model, belief, current, views, valid, planner, objective, n_samples, order, motion_cost
 ):
-    h = expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
+    h = _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
     n_a = model.mu.shape[2]
     h = h + motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
     return jnp.where(valid, h, jnp.inf)

@@ -32,6 +32,8 @@ __all__ = [
     "wrap_degrees",
     "angular_distance",
     "check_view_indices",
+    "check_view_array",
+    "check_mask_shape",
 ]
 
 
@@ -171,6 +173,69 @@ def check_view_indices(
                 f"{name} index out of the view grid: got values in [{arr.min()}, {arr.max()}], "
                 f"{where} has {size} {name}s (0..{size - 1})"
             )
+
+
+def check_view_array(
+    shape: tuple[int, int, int],
+    views: Any,
+    *,
+    name: str = "views",
+    names: tuple[str, str, str] = ("robot azimuth", "elevation", "scale"),
+    where: str = "the response model's grid",
+) -> None:
+    """Raise ``ValueError`` unless ``views`` are ``(phi, e, s)`` rows of integer indices inside ``shape``.
+
+    Parameters
+    ----------
+    shape
+        ``(A, E, S)`` of the grid.
+    views
+        Integer array ``(..., 3)`` (one view ``(3,)``, or candidates ``(C, 3)``).
+    name
+        How ``views`` is called in the message.
+    names, where
+        As for :func:`check_view_indices`, which words the message when an index is out of range.
+    """
+    arr = np.asarray(views)
+    if arr.ndim < 1 or arr.shape[-1] != 3:
+        raise ValueError(f"{name} must be (phi, e, s) rows, shape (..., 3), got shape {arr.shape}")
+    if arr.dtype.kind in "iu":  # the common case, decided without the detailed check
+        if arr.ndim == 1:
+            a, e, s = arr.tolist()
+            if 0 <= a < shape[0] and 0 <= e < shape[1] and 0 <= s < shape[2]:
+                return
+        elif arr.size == 0 or (arr.min() >= 0 and (arr < np.asarray(shape)).all()):
+            return
+    check_view_indices(shape, arr[..., 0], arr[..., 1], arr[..., 2], names=names, where=where)
+
+
+def check_mask_shape(
+    mask: Any,
+    shape: tuple[int, ...],
+    *,
+    name: str = "mask",
+    where: str = "the response model's view grid (A, E, S)",
+) -> None:
+    """Raise ``ValueError`` if a boolean mask over views does not have the grid's ``shape``.
+
+    A mask of another grid would be indexed out of range, and JAX clamps such indices: the planner
+    would silently score views that do not exist.
+
+    Parameters
+    ----------
+    mask
+        The mask (only its shape is used, so traced arrays are fine).
+    shape
+        The shape it must have, e.g. ``(A, E, S)``.
+    name, where
+        How the mask and the grid are called in the message.
+    """
+    got = tuple(np.shape(mask))
+    if got != tuple(shape):
+        raise ValueError(
+            f"{name} has shape {got} but {where} is {tuple(shape)}: was the mask made for another "
+            "view grid?"
+        )
 
 
 #: The layout of Savarese et al.'s 3D Object Category dataset: 8 azimuths x 3 heights x 3 scales.

@@ -279,3 +279,42 @@ def test_bad_input_gives_clear_errors(rng):
         B.objective_entropy(b.log_belief, "colour")
     with pytest.raises(ValueError, match="must be an integer"):
         B.naive_bayes_update(model, b, 0.0, 1.5, 0, 0)
+
+
+def test_filters_check_model_belief_and_view_where_they_enter(rng):
+    model, _ = random_model(rng)  # N = 3 draws, (O, A, E, S) = (2, 4, 2, 1)
+    nb, ia = B.naive_bayes_init(model), B.instance_init(model)
+    # a belief of a model with another view grid (A = 6) or another number of draws
+    wide, _ = random_model(rng, a=6)
+    for belief in (nb, ia):
+        with pytest.raises(ValueError, match="belief was made with another model"):
+            B.update(wide, belief, 0.0, 0, 0, 0)
+        with pytest.raises(ValueError, match="belief was made with another model"):
+            B.predictive_mixture(wide, belief, 0, 0, 0)
+    fewer = ResponseModel(*(x[:2] for x in model))
+    with pytest.raises(ValueError, match=r"InstanceBelief.u_mean has shape \(3, 2, 4\)"):
+        B.instance_update(fewer, ia, 0.0, 0, 0, 0)
+    with pytest.raises(ValueError, match="not a belief"):
+        B.predictive_mixture(model, nb.log_belief, 0, 0, 0)
+    with pytest.raises(ValueError, match="elevation index out of the view grid"):
+        B.predictive_mixture(model, nb, 0, 2, 0)
+    # malformed models are refused by every filter function, before any arithmetic
+    bad_models = {
+        r"mu must have shape \(N, O, A, E, S\)": model._replace(mu=model.mu[0]),
+        "sigma shape": model._replace(sigma=model.sigma[..., 0]),
+        r"tau must have shape \(3, 2\)": model._replace(tau=model.tau[0]),
+        "mu contains NaN": model._replace(mu=model.mu.at[2, 1, 3, 1, 0].set(jnp.nan)),
+        "sigma contains NaN": model._replace(sigma=model.sigma.at[0, 0, 0, 0, 0].set(jnp.nan)),
+        "sigma must be strictly positive": model._replace(sigma=-model.sigma),
+        "tau must be non-negative": model._replace(tau=model.tau.at[0, 0].set(-0.1)),
+    }
+    for message, bad in bad_models.items():
+        for call in (
+            lambda m: B.naive_bayes_init(m),
+            lambda m: B.instance_init(m),
+            lambda m: B.naive_bayes_update(m, nb, 0.0, 0, 0, 0),
+            lambda m: B.instance_update(m, ia, 0.0, 0, 0, 0),
+            lambda m: B.predictive_mixture(m, nb, 0, 0, 0),
+        ):
+            with pytest.raises(ValueError, match=message):
+                call(bad)

@@ -159,3 +159,25 @@ def test_random_choice_picks_valid_pairs_and_reports_exhaustion(rng, key):
     assert not bool(found) and np.isinf(np.asarray(scores)).all()
     with pytest.raises(ValueError, match="unknown planner"):
         X.choose_view_and_detector(key, models, b, current, visited, visited, planner="greedy")
+
+
+def test_detector_choice_checks_its_inputs(rng, key):
+    models = (random_model(rng), random_model(rng))  # (O, A, E, S) = (2, 4, 2, 1)
+    b = F.fused_init("naive_bayes", models)
+    here = jnp.asarray([0, 0, 0])
+    ok = np.ones((2, 4, 2, 1), bool)
+    with pytest.raises(ValueError, match=r"visited mask has shape \(2, 4, 3, 1\)"):
+        X.choose_view_and_detector(key, models, b, here, np.zeros((2, 4, 3, 1), bool), ok)
+    with pytest.raises(ValueError, match=r"available mask has shape \(4, 1, 1\)"):
+        X.choose_view_and_detector(key, models, b, here, ok, np.ones((4, 1, 1), bool))
+    with pytest.raises(ValueError, match="robot azimuth index out of the view grid"):
+        X.choose_view_and_detector(key, models, b, jnp.asarray([4, 0, 0]), ok, ok)
+    with pytest.raises(ValueError, match="belief was made with another model"):
+        other = F.fused_init("naive_bayes", (random_model(rng, a=6),))
+        X.choose_view_and_detector(key, models, other, here, ok, ok)
+    views = jnp.asarray([[1, e, 0] for e in range(3)])
+    with pytest.raises(ValueError, match="elevation index out of the view grid"):
+        X.detector_expected_entropies(key, models, b, views)
+    nan = models[0]._replace(tau=models[0].tau.at[0, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="tau contains NaN"):
+        X.detector_expected_entropies(key, (nan, models[1]), b, views[:2])

@@ -226,6 +226,38 @@ def test_bad_fusion_input(rng):
         F.fused_update((m, m), b, jnp.asarray([0.0, jnp.nan]), 0)
 
 
+def test_fusion_checks_models_beliefs_and_views_where_they_enter(rng, key):
+    m = random_model(rng)  # (N, O, A, E, S) = (2, 2, 4, 2, 1)
+    few = ResponseModel(*(x[:1] for x in m))
+    nb = F.fused_init("naive_bayes", (m, m))
+    ia = F.fused_init("instance", (m, few))
+    f = jnp.zeros(2)
+    # a malformed model among the detectors
+    nan = m._replace(mu=m.mu.at[1, 0, 0, 0, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="mu contains NaN"):
+        F.fused_init("naive_bayes", (m, nan))
+    with pytest.raises(ValueError, match="sigma must be strictly positive"):
+        F.fused_update((m, m._replace(sigma=0.0 * m.sigma)), nb, f, 0)
+    # a belief of other models: another grid, parts swapped between detectors with other draws
+    wide = random_model(rng, a=6)
+    with pytest.raises(ValueError, match="belief was made with another model"):
+        F.fused_update((wide, wide), nb, f, 0)
+    with pytest.raises(ValueError, match=r"InstanceBelief.u_mean has shape \(2, 2, 4\)"):
+        F.fused_update((few, m), ia, f, 0)
+    with pytest.raises(ValueError, match="the belief has 2 detectors but 1 models"):
+        F.fused_posterior_entropy((m,), ia, jnp.zeros(1), 0)
+    # views outside the grid
+    with pytest.raises(ValueError, match="robot azimuth index out of the view grid"):
+        F.fused_update((m, m), nb, f, 4)
+    with pytest.raises(ValueError, match="elevation index out of the view grid"):
+        F.fused_expected_entropy(key, (m, m), nb, 0, 2, 0)
+    three = jnp.asarray([[1, e, 0] for e in range(3)])
+    with pytest.raises(ValueError, match="elevation index out of the view grid"):
+        F.fused_expected_entropies(key, (m, m), nb, three)
+    with pytest.raises(ValueError, match="detector index d=2 out of range"):
+        F.detector_mixture((m, m), nb, 2, 0)
+
+
 # ------------------------------------------------------------------------------------------------
 # expected entropy after running all detectors
 

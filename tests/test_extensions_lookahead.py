@@ -204,3 +204,27 @@ def test_choose_view_two_step_is_the_argmin_and_respects_masks(rng, key):
     assert int(view[0]) == 1
     with pytest.raises(ValueError, match="two-step planner"):
         L.choose_view_two_step(key, model, b, current, visited, available, "plug_in")
+
+
+def test_lookahead_checks_its_inputs(rng, key):
+    model = random_model(rng, a=4, e=2)
+    b = belief_after("naive_bayes", model, [1.0], [0])
+    here = jnp.asarray([0, 0, 0])
+    ok = np.ones((4, 2, 1), bool)
+    views = jnp.asarray([[phi, 0, 0] for phi in range(4)])
+    valid = jnp.ones(4, bool)
+    with pytest.raises(ValueError, match=r"visited mask has shape \(4, 1, 1\)"):
+        L.choose_view_two_step(key, model, b, here, np.zeros((4, 1, 1), bool), ok)
+    with pytest.raises(ValueError, match="scale index out of the view grid"):
+        L.choose_view_two_step(key, model, b, jnp.asarray([0, 0, 1]), ok, ok)
+    with pytest.raises(ValueError, match=r"valid must have shape \(C,\) = \(4,\)"):
+        L.two_step_expected_entropies(model, b, views, valid[:3])
+    with pytest.raises(ValueError, match="elevation index out of the view grid"):
+        L.sampled_two_step_expected_entropies(key, model, b, views.at[1, 1].set(2), valid)
+    with pytest.raises(ValueError, match="belief was made with another model"):
+        L.two_step_expected_entropies(
+            model, B.naive_bayes_init(random_model(rng, a=3)), views, valid
+        )
+    bad = model._replace(sigma=model.sigma.at[0, 0, 0, 0, 0].set(-1.0))
+    with pytest.raises(ValueError, match="sigma must be strictly positive"):
+        L.two_step_value_after(None, bad, b, 0.5, 0, views, valid)

@@ -183,3 +183,13 @@ def test_bad_multi_trial_input(table, key):
         XT.run_multi_trials(key, models, multi, n_steps=9)
     with pytest.raises(ValueError, match="costs"):
         XT.run_multi_trials(key, models, multi, policy="choose", costs=[1.0])
+    # what the single-detector runner checks, checked here by the same functions
+    with pytest.raises(ValueError, match="trial poses must be integer azimuth bins 0..7"):
+        XT.run_multi_trials(key, models, multi._replace(pose=multi.pose.at[0].set(-1)))
+    with pytest.raises(ValueError, match="start scale index out of the view grid"):
+        XT.run_multi_trials(key, models, multi._replace(start=multi.start.at[2, 2].set(S)))
+    with pytest.raises(ValueError, match=r"trials.available has shape \(4, 8, 1, 1\)"):
+        XT.run_multi_trials(key, models, multi._replace(available=multi.available[:, :, :1]))
+    nan = models[1]._replace(mu=models[1].mu.at[0, 1, 2, 0, 0].set(np.nan))
+    with pytest.raises(ValueError, match="mu contains NaN"):
+        XT.run_multi_trials(key, (models[0], nan), multi)

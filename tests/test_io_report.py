@@ -101,7 +101,10 @@ def test_report_lists_numbers_and_figures(tmp_path):
         "| car | paper | gaussian+naive_bayes | 2.5 | 3.25 | -0.750 [-1.000, -0.500] | 0.04 |"
         in text
     )
-    assert "0 of 1 fits pass" in text and "| dpm/car | NO | 1.02 | 300 | 250 | 2 | 0.8 | 0.9 -> 0.99 |" in text
+    assert (
+        "0 of 1 fits pass" in text
+        and "| dpm/car | NO | 1.02 | 300 | 250 | 2 | 0.8 | 0.9 -> 0.99 |" in text
+    )
     assert text.index("fig5-car") < text.index("other")  # paper figures first
     assert "--profile quick --seed 1" in text
 

@@ -196,6 +196,49 @@ def test_noise_floor_bounds_the_likelihood_of_identical_counts():
     assert np.all(np.diff(floored) > 0)
 
 
+def test_noise_floor_is_on_the_response_scale_at_any_standardisation(rng):
+    # The floor is the rounding error of one count on the *response* scale, while the model works on
+    # responses standardised by `scale`: at scale 1 (the test above) a floor applied on the wrong
+    # scale is invisible. At other scales the reported sd must still be sqrt((scale sigma)^2 + floor^2)
+    # and the likelihood must be that of the responses under the reported parameters.
+    from numpyro import handlers
+
+    floor = transforms.resolution_sd("anscombe")
+    y = rng.normal(1.0, 0.5, size=(6, 8, 1, 1))
+    observed = rng.random(y.shape) > 0.2
+    o = np.array([1, 1, 1, 0, 0, 0])
+    data = make_view_data(np.where(observed, y, np.nan), o, observed=observed)
+    model = make_model(True, ())
+    for scale in (4.0, 0.25, 1.0):
+        args = model_args(data, loc=0.7, scale=scale, floor=floor)
+        for sigma_class in (1e-6, 0.3):  # on the standardised scale
+            params = {
+                "alpha": np.array([0.1, 0.6]),
+                "eta": np.ones(2),
+                "coef": rng.normal(0.0, 0.3, size=(2, 7)),
+                "sigma_class": np.full(2, sigma_class),
+                "sigma_spread": np.full(2, 0.5),
+                "log_sigma_contrast": np.zeros((2, 7)),
+                "instance_sd": np.array([0.2, 0.4]),
+            }
+            trace = handlers.trace(handlers.substitute(handlers.seed(model, 0), params))
+            tr = trace.get_trace(*args)
+            sigma = np.asarray(tr["sigma"]["value"], np.float64)  # (2, A), response scale
+            want = np.sqrt((scale * sigma_class) ** 2 + floor**2)
+            np.testing.assert_allclose(sigma, want, rtol=1e-5, err_msg=f"scale {scale}")
+            mu = np.asarray(tr["mu"]["value"], np.float64)
+            tau = np.asarray(tr["tau"]["value"], np.float64)
+            dense = 0.0
+            for i in range(len(o)):
+                sel = observed[i]
+                sd = np.broadcast_to(sigma[o[i]][:, None, None], sel.shape)[sel]
+                cov = np.diag(sd**2) + tau[o[i]] ** 2
+                dense += stats.multivariate_normal(mu[o[i]][sel], cov).logpdf(y[i][sel])
+            site = tr["likelihood"]
+            ll = float(site["fn"].log_prob(site["value"]))  # log density of the standardised y
+            np.testing.assert_allclose(ll - observed.sum() * np.log(scale), dense, rtol=1e-5)
+
+
 def test_choose_noncentered_per_class():
     def design(n_pos, n_neg, n_views):
         o = np.r_[np.ones(n_pos, int), np.zeros(n_neg, int)]

@@ -65,3 +65,22 @@ def test_check_response_model_names_the_problem(rng):
         check_response_model(m._replace(mu=m.mu.at[0, 0, 0, 0, 0].set(jnp.nan)))
     with pytest.raises(ValueError, match="tau must have shape"):
         check_response_model(m._replace(tau=m.tau[:, :1]))
+
+
+def test_check_response_model_checks_shapes_under_jit_and_values_every_time_they_can_change(rng):
+    m = _model(rng)
+    # inside jit only shapes are known: they are checked, values are not
+    jax.jit(check_response_model)(m)
+    with pytest.raises(ValueError, match="sigma shape"):
+        jax.jit(check_response_model)(m._replace(sigma=m.sigma[:, :1]))
+    # a model that passed is remembered by its (immutable) arrays, never by anything that can change
+    check_response_model(m)
+    with pytest.raises(ValueError, match="mu contains NaN"):
+        check_response_model(m._replace(mu=m.mu.at[0, 0, 0, 0, 0].set(jnp.nan)))
+    m_np = ResponseModel(*(np.array(x) for x in m))
+    check_response_model(m_np)
+    m_np.sigma[1, 0, 2, 0, 0] = 0.0  # NumPy arrays can change after a check: checked again
+    with pytest.raises(ValueError, match="sigma must be strictly positive"):
+        check_response_model(m_np)
+    with pytest.raises(ValueError, match="expected a ResponseModel"):
+        check_response_model((m.mu, m.sigma))

@@ -121,6 +121,17 @@ def test_bad_simulator_input(table, key, model):
     hole = trials._replace(available=trials.available.at[0, rel, start[1], start[2]].set(False))
     with pytest.raises(ValueError, match="starts at a missing view"):
         sim.run_trials(key, model, hole)
+    # indices outside the grid would be clamped (JAX) or wrapped (NumPy) into some other view
+    with pytest.raises(ValueError, match="trial poses must be integer azimuth bins 0..7"):
+        sim.run_trials(key, model, trials._replace(pose=trials.pose.at[2].set(A)))
+    with pytest.raises(ValueError, match="start elevation index out of the view grid"):
+        sim.run_trials(key, model, trials._replace(start=trials.start.at[1, 1].set(E)))
+    with pytest.raises(ValueError, match="start azimuth index out of the view grid"):
+        sim.run_trials(key, model, trials._replace(start=trials.start.at[3, 0].set(-1)))
+    with pytest.raises(ValueError, match=r"trials.available has shape \(4, 8, 1, 1\)"):
+        sim.run_trials(key, model, trials._replace(available=trials.available[:, :, :1]))
+    with pytest.raises(ValueError, match="mu contains NaN"):
+        sim.run_trials(key, model._replace(mu=model.mu.at[0, 1, 2, 0, 0].set(np.nan)), trials)
 
 
 def brute_force_log_belief(model, views, f):
@@ -211,9 +222,18 @@ def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key)
         assert len({tuple(v) for v in seen}) == n_avail
         rel = (seen[:, 0] - pose[t]) % A
         assert avail[t][rel, seen[:, 1], seen[:, 2]].all()
-        assert np.all(
-            np.isfinite(np.asarray(rec.log_belief[t])) | (np.asarray(rec.log_belief[t]) < 0)
-        )
+        f = np.asarray(rec.responses[t])
+        np.testing.assert_allclose(f[obs[t]], [sim.observe(trials, t, v) for v in seen], rtol=1e-6)
+        # the belief after each step is naive Bayes over the views observed so far, and only those:
+        # a step that found no view (observed = False) leaves it unchanged. Every state is compared
+        # (the beliefs are concentrated: an extra update would change only the improbable states)
+        for k in range(n_steps):
+            keep = obs[t, : k + 1]
+            ref = brute_force_log_belief(model, views[t, : k + 1][keep], f[: k + 1][keep])
+            got = np.asarray(rec.log_belief[t, k])
+            np.testing.assert_allclose(
+                got, ref, rtol=1e-4, atol=2e-3, err_msg=f"trial {t} step {k}"
+            )
 
 
 def test_metrics_against_hand_computation():
@@ -252,6 +272,33 @@ def test_calibration_and_bootstrap(rng):
     np.testing.assert_allclose([lo, hi], [mean - 1.96 * se, mean + 1.96 * se], atol=0.05)
     d, dlo, dhi = M.paired_bootstrap_difference(3, x + 0.5, x, n_boot=200)
     np.testing.assert_allclose([d, dlo, dhi], 0.5)  # identical pairs: no spread
+
+
+def test_bootstrap_intervals_have_the_stated_level(rng):
+    # The mean of 400 normal values is normal, so a percentile-bootstrap interval at level q has the
+    # half-width z_q * se. 5 % of it is tighter than the gap between levels (a 90 % interval is 16 %
+    # narrower than a 95 % one; the resampling error here is about 2 %).
+    x = rng.normal(1.0, 2.0, size=400)
+    y = rng.normal(0.0, 1.0, size=400)
+    label = np.arange(400) % 3 == 0
+    se = {
+        "mean": x.std() / np.sqrt(400),
+        "paired": (x - y).std() / np.sqrt(400),
+        "tp_minus_tn": np.hypot(
+            x[label].std() / np.sqrt(label.sum()), x[~label].std() / np.sqrt((~label).sum())
+        ),
+    }
+    for level in (None, 0.95, 0.9, 0.5):
+        z = stats.norm.ppf(0.5 + (0.95 if level is None else level) / 2)
+        opt = {} if level is None else {"level": level}
+        got = {
+            "mean": M.bootstrap_mean(3, x, 4000, **opt),
+            "paired": M.paired_bootstrap_difference(3, x, y, 4000, **opt),
+            "tp_minus_tn": M.bootstrap_tp_minus_tn(3, x, label, 4000, **opt),
+        }
+        for name, (value, lo, hi) in got.items():
+            np.testing.assert_allclose((hi - lo) / 2, z * se[name], rtol=0.05, err_msg=name)
+            assert abs((hi + lo) / 2 - value) < 0.1 * se[name], name
 
 
 def test_experiment_entropy_planner_beats_random(table, model, key, tmp_path):
@@ -335,3 +382,47 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
         np.testing.assert_array_equal(study.trials[var].values, ds[var].values)
     # a missing response table is a clear error, not a traceback
     assert main(["simulate", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1
+
+
+def test_simulate_gives_the_large_experiment_its_own_posterior_draws(
+    table, model, tmp_path, monkeypatch
+):
+    # Fast (no trial is compiled): every run of the trial runner is recorded and answered with a
+    # stand-in record, and the number of posterior draws of the model it is given is checked. With the
+    # old bug the large experiment ran with --max-draws draws instead of --large-max-draws.
+    import scrppl.models as models
+    import scrppl.sim.experiment
+    import scrppl.sim.runner
+    from scrppl.cli import main
+    from scrppl.responses import save_response_table
+
+    save_response_table(table, tmp_path / "responses.nc")
+    many = ResponseModel(*(jnp.repeat(x, 10, axis=0) for x in model))  # 10 posterior draws
+
+    def fake_loader(models_dir, kind, detector, target, n_draws=None):
+        if kind != "hierarchical":
+            raise FileNotFoundError(f"no {kind} model in {models_dir}")
+        keep = np.round(np.linspace(0, 9, min(n_draws or 10, 10))).astype(int)
+        return ResponseModel(*(x[keep] for x in many)), {"transform": "identity"}
+
+    runs = []
+
+    def fake_run_trials(key, model, trials, *, filter="naive_bayes", n_steps=None, **options):
+        runs.append((trials.n_trials, filter, model.mu.shape[0]))
+        n, k = trials.n_trials, A if n_steps is None else n_steps
+        views = jnp.broadcast_to(jnp.asarray(trials.start)[:, None], (n, k, 3))
+        return sim.TrialRecord(
+            views, jnp.zeros((n, k)), jnp.ones((n, k), bool), jnp.full((n, k, 2, A), -np.log(2 * A))
+        )
+
+    monkeypatch.setattr(models, "load_response_model", fake_loader, raising=False)
+    monkeypatch.setattr(scrppl.sim.experiment, "run_trials", fake_run_trials)
+    monkeypatch.setattr(scrppl.sim.runner, "run_trials", fake_run_trials)
+    argv = ["simulate", "--out", str(tmp_path), "--profile", "quick", "--trials", "12"]
+    argv += ["--large-trials", "16", "--kinds", "hierarchical", "--quiet"]
+    argv += ["--max-draws", "6", "--large-max-draws", "3"]
+    assert main(argv) == 0
+    paper = {(f, d) for t, f, d in runs if t == 12}
+    large = {(f, d) for t, f, d in runs if t == 16}
+    assert paper == {("naive_bayes", 6), ("instance", 6)}
+    assert large == {("naive_bayes", 3), ("instance", 3)}

@@ -27,6 +27,7 @@ detector's transform)::
 from scrppl.extensions.detectors import choose_view_and_detector, detector_expected_entropies
 from scrppl.extensions.fusion import (
     FusedInstanceBelief,
+    check_fused_belief,
     check_models,
     detector_mixture,
     fused_expected_entropies,
@@ -63,6 +64,7 @@ __all__ = [
     # fusion
     "FusedInstanceBelief",
     "check_models",
+    "check_fused_belief",
     "fused_init",
     "fused_log_likelihood",
     "fused_update",

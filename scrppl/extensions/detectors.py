@@ -26,16 +26,16 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from scrppl import planning as P
-from scrppl.extensions.fusion import check_models, detector_mixture
+from scrppl.extensions.fusion import check_fused_belief, check_models, detector_mixture
 from scrppl.models.response import ResponseModel
-from scrppl.views import angular_distance
+from scrppl.views import angular_distance, check_mask_shape
 
 __all__ = ["detector_expected_entropies", "choose_view_and_detector"]
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def detector_expected_entropies(
     key: jax.Array | None,
     models: Sequence[ResponseModel],
@@ -66,6 +66,17 @@ def detector_expected_entropies(
         ``M`` for ``"sampled"``; Gauss-Hermite order for ``"quadrature"``.
     """
     models = check_models(models)
+    P.check_planner_inputs(models[0], views=views)
+    check_fused_belief(models, belief)
+    return _detector_expected_entropies(
+        key, models, belief, views, planner, objective, n_samples, order
+    )
+
+
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
+def _detector_expected_entropies(key, models, belief, views, planner, objective, n_samples, order):
+    """:func:`detector_expected_entropies` without the input checks (compiled)."""
+    models = check_models(models)
     views = jnp.asarray(views)
     cols = []
     for d in range(len(models)):
@@ -88,7 +99,6 @@ def detector_expected_entropies(
     return jnp.stack(cols, axis=1)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "mode", "n_samples", "order"))
 def choose_view_and_detector(
     key: jax.Array,
     models: Sequence[ResponseModel],
@@ -151,6 +161,49 @@ def choose_view_and_detector(
         ``(C, D)`` score of each pair (``+inf`` for invalid ones; zeros for ``"random"``).
     """
     models = check_models(models)
+    P.check_planner_inputs(models[0], current=current)
+    check_fused_belief(models, belief)
+    grid = tuple(models[0].mu.shape[2:5])
+    for name, mask in (("visited mask", visited), ("available mask", available)):
+        shape = (len(models), *grid) if len(np.shape(mask)) == 4 else grid
+        check_mask_shape(mask, shape, name=name, where="the models' (D, A, E, S) or (A, E, S) grid")
+    return _choose_view_and_detector(
+        key,
+        models,
+        belief,
+        current,
+        visited,
+        available,
+        costs,
+        cost_weight,
+        planner=planner,
+        objective=objective,
+        mode=mode,
+        n_samples=n_samples,
+        order=order,
+        motion_cost=motion_cost,
+    )
+
+
+@partial(jax.jit, static_argnames=("planner", "objective", "mode", "n_samples", "order"))
+def _choose_view_and_detector(
+    key,
+    models,
+    belief,
+    current,
+    visited,
+    available,
+    costs,
+    cost_weight,
+    planner,
+    objective,
+    mode,
+    n_samples,
+    order,
+    motion_cost,
+):
+    """:func:`choose_view_and_detector` without the input checks (compiled)."""
+    models = check_models(models)
     n_det = len(models)
     n_a, n_e, n_s = models[0].mu.shape[2:5]
     visited = jnp.broadcast_to(jnp.asarray(visited, bool), (n_det, n_a, n_e, n_s))
@@ -162,7 +215,7 @@ def choose_view_and_detector(
         idx, found = P.random_unseen_view(key, valid.ravel())
         scores = jnp.where(valid, 0.0, jnp.inf)
     elif planner in P.PLANNERS:
-        h = detector_expected_entropies(
+        h = _detector_expected_entropies(
             key, models, belief, views, planner, objective, n_samples, order
         )
         costs = jnp.zeros(n_det, h.dtype) if costs is None else jnp.asarray(costs, h.dtype)

@@ -40,12 +40,15 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl import planning as P
+from scrppl._checks import is_concrete
 from scrppl.belief import (
     FILTERS,
     OBJECTIVES,
     InstanceBelief,
     Mixture,
     NaiveBayesBelief,
+    check_belief,
+    check_view,
     instance_init,
     instance_update,
     naive_bayes_init,
@@ -53,11 +56,12 @@ from scrppl.belief import (
     predictive_mixture,
     view_parameters,
 )
-from scrppl.models.response import ResponseModel
+from scrppl.models.response import ResponseModel, check_response_model
 
 __all__ = [
     "FusedInstanceBelief",
     "check_models",
+    "check_fused_belief",
     "fused_init",
     "fused_log_likelihood",
     "fused_update",
@@ -88,9 +92,10 @@ class FusedInstanceBelief(NamedTuple):
 
 
 def check_models(models: Sequence[ResponseModel]) -> tuple[ResponseModel, ...]:
-    """Check that ``models`` (one per detector) share the classes and the view grid; return a tuple.
+    """Check that ``models`` (one per detector) are well formed and share the classes and the view grid.
 
-    The number of posterior draws ``N_d`` may differ between detectors.
+    Each model is checked by :func:`scrppl.models.response.check_response_model` (shapes; values when
+    concrete). The number of posterior draws ``N_d`` may differ between detectors. Returns a tuple.
     """
     models = tuple(models)
     if not models:
@@ -98,6 +103,7 @@ def check_models(models: Sequence[ResponseModel]) -> tuple[ResponseModel, ...]:
     for m in models:
         if not isinstance(m, ResponseModel):
             raise ValueError(f"expected ResponseModel instances, got {type(m).__name__}")
+        check_response_model(m)
     shape = tuple(models[0].mu.shape[1:])
     for d, m in enumerate(models[1:], start=1):
         if tuple(m.mu.shape[1:]) != shape:
@@ -106,6 +112,32 @@ def check_models(models: Sequence[ResponseModel]) -> tuple[ResponseModel, ...]:
                 f"{shape}: fused detectors must share the classes and the view grid"
             )
     return models
+
+
+def check_fused_belief(models: Sequence[ResponseModel], belief) -> None:
+    """Raise ``ValueError`` unless ``belief`` is a fused belief of these models (one part per detector).
+
+    A :class:`~scrppl.belief.NaiveBayesBelief` must fit the models' classes and poses; a
+    :class:`FusedInstanceBelief` must have a ``(O, A)`` prior and one part per model, each a belief of
+    that model (:func:`scrppl.belief.check_belief`).
+    """
+    if isinstance(belief, NaiveBayesBelief):
+        check_belief(models[0], belief)
+    elif isinstance(belief, FusedInstanceBelief):
+        if len(belief.parts) != len(models):
+            raise ValueError(
+                f"the belief has {len(belief.parts)} detectors but {len(models)} models were given"
+            )
+        want = tuple(models[0].mu.shape[1:3])
+        if tuple(np.shape(belief.log_prior)) != want:
+            raise ValueError(
+                f"FusedInstanceBelief.log_prior has shape {tuple(np.shape(belief.log_prior))} but the "
+                f"models have (O, A) = {want}: the belief was made with other models"
+            )
+        for model, part in zip(models, belief.parts, strict=True):
+            check_belief(model, part)
+    else:
+        raise ValueError(f"not a fused belief: {type(belief).__name__}")
 
 
 def _mask(mask, n_det: int) -> jax.Array:
@@ -174,6 +206,7 @@ def fused_log_likelihood(
         ``(D,)`` booleans: which detectors were run (all by default).
     """
     models = check_models(models)
+    check_view(models[0], phi, e, s)
     f = _responses(responses, len(models))
     mask = _mask(mask, len(models))
     total = 0.0
@@ -186,7 +219,7 @@ def fused_log_likelihood(
 
 
 def _check_finite(f, mask) -> None:
-    if isinstance(f, jax.core.Tracer) or isinstance(mask, jax.core.Tracer):
+    if not is_concrete(f, mask):
         return
     bad = np.asarray(mask) & ~np.isfinite(np.asarray(f))
     if bad.any():
@@ -219,6 +252,8 @@ def fused_update(models: Sequence[ResponseModel], belief, responses, phi, e=0, s
         running one chosen detector.
     """
     models = check_models(models)
+    check_fused_belief(models, belief)
+    check_view(models[0], phi, e, s)
     f = _responses(responses, len(models))
     mask = _mask(mask, len(models))
     _check_finite(f, mask)
@@ -226,10 +261,6 @@ def fused_update(models: Sequence[ResponseModel], belief, responses, phi, e=0, s
         logp = belief.log_belief + fused_log_likelihood(models, f, phi, e, s, mask)
         return NaiveBayesBelief(logp - logsumexp(logp))
     if isinstance(belief, FusedInstanceBelief):
-        if len(belief.parts) != len(models):
-            raise ValueError(
-                f"the belief has {len(belief.parts)} detectors but {len(models)} models were given"
-            )
         parts = []
         for d, (model, part) in enumerate(zip(models, belief.parts, strict=True)):
             new = instance_update(model, part, jnp.where(mask[d], f[d], 0.0), phi, e, s)
@@ -297,6 +328,11 @@ def detector_mixture(models: Sequence[ResponseModel], belief, d: int, phi, e=0, 
     Mixture
         Arrays of shape ``(N_d, O, A)``.
     """
+    models = check_models(models)
+    if not 0 <= d < len(models):
+        raise ValueError(f"detector index d={d} out of range for {len(models)} models")
+    check_fused_belief(models, belief)
+    check_view(models[0], phi, e, s)
     if isinstance(belief, NaiveBayesBelief):
         return predictive_mixture(models[d], belief, phi, e, s)
     log_pi, mean, var = _conditional(models, belief, d, phi, e, s)
@@ -333,6 +369,8 @@ def fused_posterior_entropy(
     Entropies of shape ``responses.shape[:-1]``.
     """
     models = check_models(models)
+    check_fused_belief(models, belief)
+    check_view(models[0], phi, e, s)
     f = jnp.asarray(responses)
     if f.shape[-1:] != (len(models),):
         raise ValueError(
@@ -401,7 +439,6 @@ def _sample_fused(key, models, belief, phi, e, s, n_samples):
     return jnp.stack(fs, axis=-1)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def fused_expected_entropy(
     key: jax.Array | None,
     models: Sequence[ResponseModel],
@@ -445,6 +482,17 @@ def fused_expected_entropy(
     Scalar expected entropy in nats.
     """
     models = check_models(models)
+    check_fused_belief(models, belief)
+    check_view(models[0], phi, e, s)
+    return _fused_expected_entropy(
+        key, models, belief, phi, e, s, planner, objective, n_samples, order
+    )
+
+
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
+def _fused_expected_entropy(key, models, belief, phi, e, s, planner, objective, n_samples, order):
+    """:func:`fused_expected_entropy` without the input checks (compiled)."""
+    models = check_models(models)
     _check_objective(objective)
     if len(models) == 1:
         mix = detector_mixture(models, belief, 0, phi, e, s)
@@ -460,7 +508,6 @@ def fused_expected_entropy(
     raise ValueError(f"unknown planner {planner!r}; expected 'quadrature' or 'sampled'")
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
 def fused_expected_entropies(
     key: jax.Array | None,
     models: Sequence[ResponseModel],
@@ -477,9 +524,20 @@ def fused_expected_entropies(
     -------
     ``(C,)`` expected entropies (the same random numbers for every candidate when sampled).
     """
+    models = check_models(models)
+    P.check_planner_inputs(models[0], views=views)
+    check_fused_belief(models, belief)
+    return _fused_expected_entropies(
+        key, models, belief, views, planner, objective, n_samples, order
+    )
+
+
+@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
+def _fused_expected_entropies(key, models, belief, views, planner, objective, n_samples, order):
+    """:func:`fused_expected_entropies` without the input checks (compiled)."""
     views = jnp.asarray(views)
     return jax.vmap(
-        lambda v: fused_expected_entropy(
+        lambda v: _fused_expected_entropy(
             key, models, belief, v[0], v[1], v[2], planner, objective, n_samples, order
         )
     )(views)

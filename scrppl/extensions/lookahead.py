@@ -57,6 +57,16 @@ def _check_objective(objective: str) -> None:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
 
 
+def _check_candidates(model: ResponseModel, belief, views, valid) -> None:
+    """The model, the belief, candidate views ``(C, 3)`` in the grid and a ``valid`` mask ``(C,)``."""
+    P.check_planner_inputs(model, belief, views=views)
+    if np.shape(valid) != np.shape(views)[:1]:
+        raise ValueError(
+            f"valid must have shape (C,) = {np.shape(views)[:1]}, one flag per candidate view, got "
+            f"{np.shape(valid)}"
+        )
+
+
 def two_step_value_after(
     key: jax.Array | None,
     model: ResponseModel,
@@ -97,6 +107,7 @@ def two_step_value_after(
     -------
     Scalar: the best second view's expected entropy, or ``H(b | F, f1)`` if no second view is left.
     """
+    _check_candidates(model, belief, views, valid)
     v1 = views[first]
     b1 = update(model, belief, f1, v1[0], v1[1], v1[2])
     inner = P.expected_entropies(key, model, b1, views, planner, objective, n_samples, order)
@@ -105,7 +116,6 @@ def two_step_value_after(
     return jnp.where(ok.any(), best, objective_entropy(joint_log_belief(b1), objective))
 
 
-@partial(jax.jit, static_argnames=("objective", "order", "inner_order"))
 def two_step_expected_entropies(
     model: ResponseModel,
     belief,
@@ -142,6 +152,13 @@ def two_step_expected_entropies(
     -------
     ``(C,)`` values in nats; ``+inf`` for invalid first views.
     """
+    _check_candidates(model, belief, views, valid)
+    return _two_step_expected_entropies(model, belief, views, valid, objective, order, inner_order)
+
+
+@partial(jax.jit, static_argnames=("objective", "order", "inner_order"))
+def _two_step_expected_entropies(model, belief, views, valid, objective, order, inner_order):
+    """:func:`two_step_expected_entropies` without the input checks (compiled)."""
     _check_objective(objective)
     inner_order = order if inner_order is None else inner_order
     views = jnp.asarray(views)
@@ -187,7 +204,6 @@ def _sample_mixture(key, mixture, n_samples):
     return mixture.mean.ravel()[comp] + jnp.sqrt(mixture.var.ravel()[comp]) * eps
 
 
-@partial(jax.jit, static_argnames=("objective", "n_outer", "n_inner"))
 def sampled_two_step_expected_entropies(
     key: jax.Array,
     model: ResponseModel,
@@ -223,6 +239,17 @@ def sampled_two_step_expected_entropies(
     -------
     ``(C,)`` estimates in nats; ``+inf`` for invalid first views.
     """
+    _check_candidates(model, belief, views, valid)
+    return _sampled_two_step_expected_entropies(
+        key, model, belief, views, valid, objective, n_outer, n_inner
+    )
+
+
+@partial(jax.jit, static_argnames=("objective", "n_outer", "n_inner"))
+def _sampled_two_step_expected_entropies(
+    key, model, belief, views, valid, objective, n_outer, n_inner
+):
+    """:func:`sampled_two_step_expected_entropies` without the input checks (compiled)."""
     _check_objective(objective)
     views = jnp.asarray(views)
     valid = jnp.asarray(valid, bool)
@@ -258,10 +285,6 @@ def sampled_two_step_expected_entropies(
     return jnp.where(valid, values, jnp.inf)
 
 
-@partial(
-    jax.jit,
-    static_argnames=("planner", "objective", "mode", "order", "n_outer", "n_inner"),
-)
 def choose_view_two_step(
     key: jax.Array,
     model: ResponseModel,
@@ -316,11 +339,49 @@ def choose_view_two_step(
     scores
         ``(C,)`` score of each candidate (``+inf`` for invalid ones).
     """
+    P.check_planner_inputs(model, belief, current=current, visited=visited, available=available)
+    return _choose_view_two_step(
+        key,
+        model,
+        belief,
+        current,
+        visited,
+        available,
+        planner=planner,
+        objective=objective,
+        mode=mode,
+        order=order,
+        n_outer=n_outer,
+        n_inner=n_inner,
+        motion_cost=motion_cost,
+    )
+
+
+@partial(
+    jax.jit,
+    static_argnames=("planner", "objective", "mode", "order", "n_outer", "n_inner"),
+)
+def _choose_view_two_step(
+    key,
+    model,
+    belief,
+    current,
+    visited,
+    available,
+    planner,
+    objective,
+    mode,
+    order,
+    n_outer,
+    n_inner,
+    motion_cost,
+):
+    """:func:`choose_view_two_step` without the input checks (compiled)."""
     views, valid = P.candidate_views(current, visited, available, mode)
     if planner == "quadrature":
-        h = two_step_expected_entropies(model, belief, views, valid, objective, order)
+        h = _two_step_expected_entropies(model, belief, views, valid, objective, order, None)
     elif planner == "sampled":
-        h = sampled_two_step_expected_entropies(
+        h = _sampled_two_step_expected_entropies(
             key, model, belief, views, valid, objective, n_outer, n_inner
         )
     else:

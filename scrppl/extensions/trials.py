@@ -49,8 +49,14 @@ from scrppl.extensions.fusion import (
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.responses import validate_response_table
 from scrppl.sim import metrics as M
-from scrppl.sim.simulator import Trials, draw_trials, robot_frame, transformed_scores
-from scrppl.views import angular_distance
+from scrppl.sim.simulator import (
+    Trials,
+    check_starts,
+    draw_trials,
+    robot_frame,
+    transformed_scores,
+)
+from scrppl.views import angular_distance, check_mask_shape
 
 __all__ = [
     "MultiTrials",
@@ -452,6 +458,13 @@ def run_multi_trials(
         raise ValueError(f"unknown planner {planner!r} for policy {policy!r}; expected {allowed}")
     if mode not in P.MODES:
         raise ValueError(f"unknown candidate mode {mode!r}; expected one of {P.MODES}")
+    resp_shape = tuple(np.shape(trials.responses))
+    check_mask_shape(
+        trials.available,
+        resp_shape[:1] + resp_shape[2:],
+        name="trials.available",
+        where="trials.responses (T, D, A, E, S) without its detector axis",
+    )
     grid_shape = tuple(trials.available.shape[1:])
     for m in models:
         check_response_model(m, grid_shape)
@@ -465,11 +478,7 @@ def run_multi_trials(
     if costs.shape != (n_det,) or not np.isfinite(costs).all():
         raise ValueError(f"costs must be {n_det} finite numbers, got {costs!r}")
     n = trials.n_trials
-    start = np.asarray(trials.start)
-    if not np.asarray(trials.available)[
-        np.arange(n), (start[:, 0] - np.asarray(trials.pose)) % n_a, start[:, 1], start[:, 2]
-    ].all():
-        raise ValueError("a trial starts at a missing view (no image there)")
+    check_starts(trials.available, trials.pose, trials.start)
     static = (
         ("policy", policy),
         ("filter", filter),

@@ -23,6 +23,7 @@ Class index convention: ``o = 0`` is "target absent" (negatives), ``o = 1`` "tar
 from __future__ import annotations
 
 import math
+import weakref
 from typing import NamedTuple
 
 import jax
@@ -71,34 +72,80 @@ def check_response_model(
 ) -> None:
     """Raise ``ValueError`` naming the problem if ``model`` is malformed or fitted on another grid.
 
+    Shapes: ``mu`` and ``sigma`` ``(N, O, A, E, S)``, ``tau`` ``(N, O)``. Values: ``mu``, ``sigma``, ``tau``
+    finite, ``sigma > 0``, ``tau >= 0``. Shapes are checked always (also on traced arrays, inside ``jit``);
+    values only on concrete arrays. A model of JAX arrays (which cannot change) is checked once:
+    :data:`_CHECKED` remembers the arrays that passed, so that checking the same model on every call of a
+    planner costs a dictionary look-up.
+
     Parameters
     ----------
     model
-        The model to check (concrete arrays, not traced).
+        The model to check.
     grid_shape
         If given, the ``(A, E, S)`` the caller's view grid has.
     """
-    mu, sigma, tau = (np.asarray(x) for x in model)
-    if mu.ndim != 5:
-        raise ValueError(f"ResponseModel.mu must have shape (N, O, A, E, S), got {mu.shape}")
-    if sigma.shape != mu.shape:
-        raise ValueError(f"ResponseModel.sigma shape {sigma.shape} differs from mu {mu.shape}")
-    if tau.shape != mu.shape[:2]:
+    try:
+        mu, sigma, tau = model.mu, model.sigma, model.tau
+    except AttributeError:
         raise ValueError(
-            f"ResponseModel.tau must have shape {mu.shape[:2]} (N, O), got {tau.shape}"
-        )
-    for name, x in (("mu", mu), ("sigma", sigma), ("tau", tau)):
-        if not np.all(np.isfinite(x)):
-            raise ValueError(f"ResponseModel.{name} contains NaN or infinite values")
-    if np.any(sigma <= 0):
-        raise ValueError("ResponseModel.sigma must be strictly positive")
-    if np.any(tau < 0):
-        raise ValueError("ResponseModel.tau must be non-negative")
-    if grid_shape is not None and tuple(grid_shape) != tuple(mu.shape[2:5]):
+            f"expected a ResponseModel (mu, sigma, tau), got {type(model).__name__}"
+        ) from None
+    refs = _CHECKED.get((id(mu), id(sigma), id(tau)))
+    if refs is None or refs[0]() is not mu or refs[1]() is not sigma or refs[2]() is not tau:
+        _check_shapes(np.shape(mu), np.shape(sigma), np.shape(tau))
+        if not any(isinstance(x, jax.core.Tracer) for x in (mu, sigma, tau)):
+            _check_values(mu, sigma, tau)
+    if grid_shape is not None and tuple(grid_shape) != tuple(np.shape(mu)[2:5]):
         raise ValueError(
-            f"response model was fitted on a view grid of shape {tuple(mu.shape[2:5])} (A, E, S) "
+            f"response model was fitted on a view grid of shape {tuple(np.shape(mu)[2:5])} (A, E, S) "
             f"but is used with a grid of shape {tuple(grid_shape)}"
         )
+
+
+#: Models that passed :func:`check_response_model`: the ids of ``(mu, sigma, tau)`` -> weak references
+#: to those arrays. Only JAX arrays are remembered (they cannot change); an entry is dropped when one
+#: of its arrays is freed, and a look-up also compares the arrays themselves.
+_CHECKED: dict[tuple[int, int, int], tuple[weakref.ref, ...]] = {}
+
+
+def _check_shapes(mu_shape, sigma_shape, tau_shape) -> None:
+    if len(mu_shape) != 5:
+        raise ValueError(f"ResponseModel.mu must have shape (N, O, A, E, S), got {mu_shape}")
+    if sigma_shape != mu_shape:
+        raise ValueError(f"ResponseModel.sigma shape {sigma_shape} differs from mu {mu_shape}")
+    if tau_shape != mu_shape[:2]:
+        raise ValueError(
+            f"ResponseModel.tau must have shape {mu_shape[:2]} (N, O), got {tau_shape}"
+        )
+
+
+def _check_values(mu, sigma, tau) -> None:
+    arrays = (mu, sigma, tau)
+    for name, x in zip(("mu", "sigma", "tau"), arrays, strict=True):
+        bad = ~np.isfinite(np.asarray(x))
+        if bad.any():
+            raise ValueError(
+                f"ResponseModel.{name} contains NaN or infinite values (at index "
+                f"{tuple(int(i) for i in np.argwhere(bad)[0])} of shape {bad.shape})"
+            )
+    if np.any(np.asarray(sigma) <= 0):
+        raise ValueError(
+            "ResponseModel.sigma must be strictly positive (a noise sd), got minimum "
+            f"{float(np.min(np.asarray(sigma)))}"
+        )
+    if np.any(np.asarray(tau) < 0):
+        raise ValueError(
+            "ResponseModel.tau must be non-negative (an instance-effect sd), got minimum "
+            f"{float(np.min(np.asarray(tau)))}"
+        )
+    if all(isinstance(x, jax.Array) for x in arrays):
+        key = (id(mu), id(sigma), id(tau))
+
+        def forget(_ref, key=key):
+            _CHECKED.pop(key, None)
+
+        _CHECKED[key] = tuple(weakref.ref(x, forget) for x in arrays)
 
 
 def _gather(model: ResponseModel, o, a, e, s):

@@ -25,7 +25,8 @@ from tqdm.auto import tqdm
 from scrppl.belief import FILTERS, init_belief, joint_log_belief, update
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.planning import MODES, PLANNERS, choose_view
-from scrppl.sim.simulator import Trials, robot_frame
+from scrppl.sim.simulator import Trials, check_starts, robot_frame
+from scrppl.views import check_mask_shape
 
 __all__ = ["TrialRecord", "run_trials", "run_trial"]
 
@@ -267,6 +268,9 @@ def run_trials(
     if mode not in MODES:
         raise ValueError(f"unknown candidate mode {mode!r}; expected one of {MODES}")
     grid_shape = tuple(trials.responses.shape[1:])
+    check_mask_shape(
+        trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
+    )
     check_response_model(model, grid_shape)
     n_a, n_e, n_s = grid_shape
     max_steps = n_a if mode == "azimuth" else n_a * n_e * n_s
@@ -274,14 +278,7 @@ def run_trials(
     if not 1 <= n_steps <= max_steps:
         raise ValueError(f"n_steps must lie in 1..{max_steps} for mode {mode!r}, got {n_steps}")
     n = trials.n_trials
-    start = np.asarray(trials.start)
-    rel = (start[:, 0] - np.asarray(trials.pose)) % n_a
-    start_ok = np.asarray(trials.available)[np.arange(n), rel, start[:, 1], start[:, 2]]
-    if not start_ok.all():
-        bad = int(np.flatnonzero(~start_ok)[0])
-        raise ValueError(
-            f"trial {bad} starts at a missing view {tuple(start[bad])} (no image there)"
-        )
+    check_starts(trials.available, trials.pose, trials.start)
     n_dev = len(jax.local_devices()) if devices is None else int(devices)
     if not 1 <= n_dev <= len(jax.local_devices()):
         raise ValueError(f"devices must lie in 1..{len(jax.local_devices())}, got {devices}")

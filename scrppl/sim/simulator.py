@@ -21,6 +21,7 @@ import numpy as np
 import xarray as xr
 
 from scrppl.responses import table_grid, validate_response_table
+from scrppl.views import check_view_array
 
 __all__ = [
     "Trials",
@@ -30,6 +31,7 @@ __all__ = [
     "robot_frame",
     "observe",
     "select_trials",
+    "check_starts",
 ]
 
 
@@ -228,6 +230,49 @@ def draw_trials(
     pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
     phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
     return labels, cat, inst, pose, np.c_[phi0, ring].astype(np.int32)
+
+
+def check_starts(available, pose, start) -> None:
+    """Raise ``ValueError`` unless every trial's pose is an azimuth bin and its start an existing view.
+
+    Parameters
+    ----------
+    available
+        ``(T, A, E, S)`` object-frame availability of each trial.
+    pose
+        ``(T,)`` hidden poses, in ``0 .. A-1``.
+    start
+        ``(T, 3)`` start robot views ``(phi0, e0, s0)``, inside the grid and available at relative
+        azimuth ``(phi0 - pose) mod A``.
+    """
+    avail = np.asarray(available)
+    pose = np.asarray(pose)
+    start = np.asarray(start)
+    n = avail.shape[0]
+    if avail.ndim != 4 or pose.shape != (n,) or start.shape != (n, 3):
+        raise ValueError(
+            f"trials must have available (T, A, E, S), pose (T,) and start (T, 3); got "
+            f"{avail.shape}, {pose.shape} and {start.shape}"
+        )
+    n_a = avail.shape[1]
+    if pose.dtype.kind not in "iu" or (n and (pose.min() < 0 or pose.max() >= n_a)):
+        raise ValueError(
+            f"trial poses must be integer azimuth bins 0..{n_a - 1}, got values in "
+            f"[{pose.min()}, {pose.max()}] of dtype {pose.dtype}"
+        )
+    check_view_array(
+        avail.shape[1:],
+        start,
+        name="trial start views",
+        names=("start azimuth", "start elevation", "start scale"),
+        where="the trials' grid",
+    )
+    ok = avail[np.arange(n), (start[:, 0] - pose) % n_a, start[:, 1], start[:, 2]]
+    if not ok.all():
+        bad = int(np.flatnonzero(~ok)[0])
+        raise ValueError(
+            f"trial {bad} starts at a missing view {tuple(start[bad].tolist())} (no image there)"
+        )
 
 
 def select_trials(trials: Trials, index) -> Trials:
