@@ -32,7 +32,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl._checks import is_concrete
-from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.models.response import ResponseModel, check_response_model, normal_log_density
 from scrppl.views import check_view_indices
 
 __all__ = [
@@ -67,8 +67,6 @@ __all__ = [
 FILTERS = ("naive_bayes", "instance")
 #: Entropy objectives: joint ``H(o, theta)`` (paper eq. 5), class ``H(o)``, pose ``H(theta)``.
 OBJECTIVES = ("joint", "class", "pose")
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 class NaiveBayesBelief(NamedTuple):
@@ -225,10 +223,6 @@ def view_parameters(model: ResponseModel, phi, e, s) -> tuple[jax.Array, jax.Arr
     return mu, sigma**2, tau2
 
 
-def _normal_logpdf(f, mean, var):
-    return -0.5 * ((f - mean) ** 2 / var + jnp.log(var) + _LOG_2PI)
-
-
 # ------------------------------------------------------------------------------------------------
 # naive Bayes (paper eqs. 1-3)
 
@@ -255,7 +249,7 @@ def naive_bayes_log_likelihood(model: ResponseModel, f, phi, e, s) -> jax.Array:
     integrated out), as in :func:`scrppl.models.response.log_prob`.
     """
     mu, sigma2, tau2 = view_parameters(model, phi, e, s)
-    lp = _normal_logpdf(f, mu, sigma2 + tau2)
+    lp = normal_log_density(f, mu, sigma2 + tau2)
     if mu.shape[0] == 1:
         return lp[0]
     return logsumexp(lp, axis=0) - math.log(mu.shape[0])
@@ -336,7 +330,7 @@ def instance_update(
     m, v = belief.u_mean, belief.u_var
     pred_var = v + sigma2
     resid = f - mu - m
-    log_ev = belief.log_evidence + _normal_logpdf(resid, 0.0, pred_var)
+    log_ev = belief.log_evidence + normal_log_density(resid, 0.0, pred_var)
     gain = v / pred_var
     return InstanceBelief(belief.log_prior, m + gain * resid, v * sigma2 / pred_var, log_ev)
 
@@ -483,6 +477,6 @@ def mixture_posterior(mixture: Mixture, f) -> jax.Array:
     ``p(o, theta | F, f) ∝ sum_n w[n, o, theta] Normal(f; mean[n, o, theta], var[n, o, theta])``.
     """
     f = jnp.asarray(f)[..., None, None, None]
-    lp = mixture.log_weight + _normal_logpdf(f, mixture.mean, mixture.var)
+    lp = mixture.log_weight + normal_log_density(f, mixture.mean, mixture.var)
     joint = lp[..., 0, :, :] if mixture.mean.shape[0] == 1 else logsumexp(lp, axis=-3)
     return joint - logsumexp(joint, axis=(-2, -1), keepdims=True)

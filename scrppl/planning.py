@@ -22,6 +22,16 @@ elevation and scale; ``"all"`` -- every view of the ``A x E x S`` grid. Visited 
 unavailable (missing images) are never candidates. An optional ``motion_cost`` (nats per azimuth bin
 travelled, :func:`scrppl.views.angular_distance`) is added to the expected entropy.
 
+Every planner decides by :func:`select_view`: the valid candidate of least expected entropy plus cost.
+
+The module reads in the paper's order: candidate sets, the posterior entropy after a response
+(:func:`posterior_entropy`), the three estimates of its expectation (:func:`sampled_expected_entropy`
+is eq. 5 as written, in a few lines), then scoring all candidates (:func:`expected_entropies`) and the
+decision (:func:`select_view`, :func:`choose_view`). For the sampled planner :func:`expected_entropies`
+and :func:`choose_view` call a kernel tuned for the CPU (``scrppl._planning_kernel``: the Threefry
+hash unrolled, a polynomial ``exp2``, fused scans), which computes the same numbers as
+:func:`sampled_expected_entropy` with the same key, for all candidates at once.
+
 Everything is pure JAX: ``jit`` and ``vmap`` over trials work. The predictive distribution of the next
 response is the Gaussian mixture of :func:`scrppl.belief.predictive_mixture`, so every planner works with
 both the naive-Bayes and the instance-aware filter.
@@ -38,6 +48,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl._checks import is_concrete
+from scrppl._planning_kernel import _draws, _sampled_entropies
 from scrppl.belief import OBJECTIVES, Mixture, check_belief, predictive_mixture
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.views import angular_distance, check_mask_shape, check_view_array
@@ -53,6 +64,7 @@ __all__ = [
     "plug_in_expected_entropy",
     "candidate_mixtures",
     "expected_entropies",
+    "select_view",
     "choose_view",
     "check_planner_inputs",
 ]
@@ -61,8 +73,6 @@ __all__ = [
 PLANNERS = ("random", "sampled", "quadrature", "plug_in")
 #: Candidate-set modes.
 MODES = ("azimuth", "all")
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 def _check_objective(objective: str) -> None:
@@ -237,217 +247,21 @@ def posterior_entropy(mixture: Mixture, f, objective: str = "joint") -> jax.Arra
     return h.reshape(f.shape)
 
 
-#: Threefry-2x32 rotation constants (Salmon et al. 2011), as in :mod:`jax.random`.
-_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
-
-
-def _threefry2x32(k1, k2, x1, x2):
-    """The Threefry-2x32 hash (20 rounds) of counters ``(x1, x2)`` under key ``(k1, k2)``, unrolled.
-
-    The same function :mod:`jax.random` uses for its default keys, written out so that it compiles to a
-    few fused elementwise operations (JAX's CPU lowering is a rolled loop of dozens of small kernels,
-    which costs more than the planning decision itself).
-    """
-    ks = (k1, k2, k1 ^ k2 ^ np.uint32(0x1BD11BDA))
-    x1 = x1 + ks[0]
-    x2 = x2 + ks[1]
-    for i in range(5):
-        for r in _ROTATIONS[i % 2]:
-            x1 = x1 + x2
-            x2 = (x2 << np.uint32(r)) | (x2 >> np.uint32(32 - r))
-            x2 = x1 ^ x2
-        x1 = x1 + ks[(i + 1) % 3]
-        x2 = x2 + ks[(i + 2) % 3] + np.uint32(i + 1)
-    return x1, x2
-
-
-def _unit_floats(bits):
-    """Float32 numbers in ``[0, 1)`` from 32 random bits, as :func:`jax.random.uniform` makes them."""
-    one = np.array(1.0, np.float32).view(np.uint32)
-    return jax.lax.bitcast_convert_type((bits >> np.uint32(9)) | one, jnp.float32) - 1.0
-
-
-def _fast_draws_apply(key) -> bool:
-    """Whether :func:`_draws` can compute ``jax.random``'s numbers itself (float32, default Threefry keys)."""
-    if not jax.config.jax_threefry_partitionable:
-        return False
-    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-        return str(jax.random.key_impl(key)) == "threefry2x32"
-    return key.dtype == jnp.uint32 and key.shape[-1:] == (2,)
-
-
-def _draws(key: jax.Array, n_samples: int, dtype) -> tuple[jax.Array, jax.Array]:
-    """The sampled planner's ``2 M`` random numbers: a uniform (the component) and a normal per sample.
-
-    ``u = uniform(k1)`` and ``eps = normal(k2)`` with ``k1, k2 = split(key)``, exactly as
-    :mod:`jax.random` draws them. For float32 and Threefry keys the hash is evaluated here, unrolled
-    (same numbers, a fraction of the cost on the CPU); otherwise :mod:`jax.random` is called.
-    """
-    key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
-    if jnp.dtype(dtype) != jnp.float32 or not _fast_draws_apply(key):
-        k_comp, k_eps = jax.random.split(key)
-        u = jax.random.uniform(k_comp, (n_samples,), dtype)
-        eps = jax.random.normal(k_eps, (n_samples,), dtype)
-        return u, eps
-    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
-    zero = np.zeros(2, np.uint32)
-    s1, s2 = _threefry2x32(data[0], data[1], zero, np.arange(2, dtype=np.uint32))  # split
-    counts = np.arange(n_samples, dtype=np.uint32)
-    b1, b2 = _threefry2x32(s1[:, None], s2[:, None], np.zeros_like(counts), counts)
-    floats = _unit_floats(b1 ^ b2)  # (2, M)
-    u = jnp.maximum(0.0, floats[0])
-    lo = np.nextafter(np.float32(-1.0), np.float32(0.0))
-    v = jnp.maximum(lo, floats[1] * (np.float32(1.0) - lo) + lo)
-    eps = np.float32(math.sqrt(2.0)) * jax.lax.erf_inv(v)
-    # computed once: left to itself XLA would fuse (and so repeat) the hash into every consumer
-    return jax.lax.optimization_barrier((u, eps))
-
-
-def _components(u, log_weight) -> jax.Array:
-    """Components drawn by inverse CDF from flattened log weights ``(K,)``, one per uniform in ``u`` ``(M,)``.
-
-    Counting (``#{k: cdf[k] <= u cdf[-1]}``) vectorises better than a binary search over a few dozen
-    components; components of weight zero are never drawn.
-    """
-    cdf = jnp.cumsum(jnp.exp(log_weight))
-    comp = jnp.sum(cdf[:, None] <= u * cdf[-1], axis=0)
-    return jax.lax.optimization_barrier(jnp.minimum(comp, log_weight.shape[0] - 1))
-
-
-def _sample_responses(key: jax.Array, mixture: Mixture, n_samples: int) -> jax.Array:
-    """``M`` responses from the predictive mixture: a component by inverse CDF, then its Gaussian.
-
-    Uses ``2 M`` random numbers (a uniform and a normal per sample), the same for every candidate
-    when called with the same key: these are the responses :func:`sampled_expected_entropy` scores.
-    """
-    u, eps = _draws(key, n_samples, mixture.mean.dtype)
-    comp = _components(u, mixture.log_weight.ravel())
-    return mixture.mean.ravel()[comp] + jnp.sqrt(mixture.var.ravel()[comp]) * eps
-
-
-#: Mixture axes ``(N, O, A)`` of each objective's groups (whose masses enter the entropy) and of the
-#: components summed within a group.
-_GROUPS = {"joint": ((1, 2), (0,)), "class": ((1,), (0, 2)), "pose": ((2,), (0, 1))}
-
-#: Exponents are taken relative to a reference at most this many nats below the largest component
-#: constant, so that no exponential overflows (``e^60`` times the number of components stays finite
-#: in float32); the drawn component's own term is then at least ``e^-60``, unless its weight is so
-#: small (below ``e^-80`` of the largest) that inverse-CDF sampling in float32 does not draw it.
-_MAX_SHIFT = 60.0
-
-#: Minimax coefficients of ``2^r`` on ``[-1/2, 1/2]`` (degree 6, relative error 1e-7 in float32).
-_EXP2_COEFFS = (
-    1.0,
-    0.6931471824645996,
-    0.24022646248340607,
-    0.055503278970718384,
-    0.009618488140404224,
-    0.001340025570243597,
-    0.00015346636064350605,
-)
-
-
-def _exp2(x):
-    """``2^x`` for float32 ``x <= 127``: a power of two times a polynomial (zero below ``-126.5``).
-
-    A third cheaper than ``jnp.exp`` on the CPU (no special cases: the planner's exponents are finite
-    and bounded above) with a relative error of about ``1e-7``, float32's own resolution. Other
-    precisions use ``jnp.exp2``.
-    """
-    x = jnp.clip(x, -127.0, 127.0)
-    n = jnp.round(x)
-    r = x - n
-    p = jnp.float32(_EXP2_COEFFS[-1])
-    for coef in _EXP2_COEFFS[-2::-1]:
-        p = p * r + jnp.float32(coef)
-    # 2^n from its exponent bits; n = -127 gives the bit pattern of 0.0 (underflow to zero)
-    scale = jax.lax.bitcast_convert_type((n.astype(jnp.int32) + 127) << 23, jnp.float32)
-    return p * scale
-
-
-def _sampled_entropies(u, eps, log_weight, mean, var, objective: str) -> jax.Array:
-    """Mean posterior entropy over ``M`` sampled responses for candidates sharing their weights.
-
-    The kernel of the sampled planner, written for the CPU. ``log_weight`` ``(N, O, A)`` are the
-    mixture weights, the same for every candidate (they are the current belief over draw and state);
-    ``mean`` and ``var`` are ``(C, N, O, A)``. Each sample ``m`` draws one component (shared by the
-    candidates: common random numbers) and a response ``f[c, m]`` for each candidate ``c``. For each
-    group ``g`` (a state ``(o, theta)`` for the joint objective, a class or a pose otherwise) with
-    components ``j`` (the ``N`` draws, and the poses or classes summed over):
-
-    ``q[g] = sum_j 2^(c[j] + a[j] (f - mean[j])^2 - ref)``, ``c = (log w - log(var) / 2) / log 2``,
-    ``a = -1 / (2 var log 2)``, and ``H = log 2 (log2 Z - sum_g q[g] log2 q[g] / Z)``,
-    ``Z = sum_g q[g]`` (exponents in bits, so that the exponential is a power of two).
-
-    ``H`` does not depend on ``ref``; it is the drawn component's own log density (known without an
-    exponential), raised where needed to at most :data:`_MAX_SHIFT` nats below ``max_j c[j]``, which
-    bounds every exponent above. So there is one exponential per component, sample and candidate and
-    no pass for a maximum. The drawn components' parameters are whole rows of a ``(K, 3, C)`` table,
-    gathered once; then the groups are visited by a ``scan``, and the members of a group summed by an
-    inner ``scan``, each step one fused elementwise loop over ``(C, M)`` (samples contiguous): nothing
-    of size ``(K, C, M)`` is in memory and the work stays in the first-level cache. For the joint
-    objective with one draw, ``log2 q[g]`` is the exponent itself (no logarithm).
-
-    Returns ``(C,)`` expected entropies in nats.
-    """
-    n_c, n, n_o, n_a = mean.shape
-    log2e = 1.0 / math.log(2.0)
-    # impossible states (log weight -inf) get a very negative finite constant: no NaN arises
-    c = jnp.maximum(log_weight - 0.5 * jnp.log(var), -1e30) * log2e
-    a = -0.5 * log2e / var
-    comp = _components(u, log_weight.ravel())  # (M,)
-    table = jnp.stack([x.reshape(n_c, -1).T for x in (mean, jnp.sqrt(var), c)], axis=1)  # (K, 3, C)
-    drawn = jnp.transpose(table[comp], (1, 2, 0))  # (3, C, M)
-    f = drawn[0] + drawn[1] * eps
-    c_max = c.reshape(n_c, -1).max(axis=1, keepdims=True)
-    ref = jnp.maximum(drawn[2] - 0.5 * log2e * eps**2, c_max - _MAX_SHIFT * log2e)
-    group_axes, member_axes = _GROUPS[objective]
-    perm = tuple(1 + i for i in group_axes + member_axes) + (0,)
-
-    def grouped(x):  # (C, N, O, A) -> (G, R, C, 1)
-        x = jnp.transpose(x, perm)
-        n_g = math.prod(x.shape[: len(group_axes)])
-        return x.reshape(n_g, -1, n_c, 1)
-
-    direct = objective == "joint" and n == 1
-    exp2 = _exp2 if mean.dtype == jnp.float32 else jnp.exp2
-
-    def exponent(mean, a, c):  # (C, 1) constants of one component -> (C, M) exponents, in bits
-        return c - ref + a * (f - mean) ** 2
-
-    def add_member(q, x):
-        return q + exp2(exponent(*x)), None
-
-    def body(carry, x):
-        z, t = carry
-        if x[0].shape[0] == 1:  # one component in the group
-            d = exponent(*(v[0] for v in x))
-            # materialised once: otherwise XLA fuses (and so repeats) it into both accumulations
-            q = jax.lax.optimization_barrier(exp2(d))
-            if direct:
-                return (z + q, t + q * d), None
-        else:  # members summed one at a time: every step is one fused loop over (C, M)
-            q, _ = jax.lax.scan(add_member, jnp.zeros_like(f), x)
-        qlogq = jnp.where(q > 0, q * jnp.log2(jnp.where(q > 0, q, 1.0)), 0.0)
-        return (z + q, t + qlogq), None
-
-    zero = jnp.zeros_like(f)
-    xs = (grouped(mean), grouped(a), grouped(c))
-    (z, t), _ = jax.lax.scan(body, (zero, zero), xs)
-    return math.log(2.0) * (jnp.log2(z) - t / z).mean(axis=1)
-
-
 @partial(jax.jit, static_argnames=("n_samples", "objective"))
 def sampled_expected_entropy(
     key: jax.Array, mixture: Mixture, n_samples: int = 256, objective: str = "joint"
 ) -> jax.Array:
     """Monte Carlo estimate of ``E_f[H(p(. | F, f))]`` for one candidate view (Meger et al. 2010, eq. 5).
 
-    Draws ``M = n_samples`` pairs ``(state, response)``: a component ``(n, o, theta)`` from the current
-    belief and the posterior draws, then ``f`` from its Gaussian. Unbiased; standard error ``O(1/sqrt(M))``.
-    The value is the mean of :func:`posterior_entropy` over the responses :func:`_sample_responses`
-    draws with the same key (to float32 rounding), computed by the fused kernel that
-    :func:`expected_entropies` uses for all candidates at once.
+    ``E_f[H] ~ (1/M) sum_m H(p(o, theta | F, f_m))``, ``f_m ~ p(f | F, V)``: draw ``M = n_samples``
+    pairs ``(state, response)`` -- a component ``k = (n, o, theta)`` of the predictive mixture (the
+    current belief over posterior draw and state), then ``f_m`` from its Gaussian -- update the belief
+    with each response and average the posterior entropy. Unbiased; standard error ``O(1/sqrt(M))``.
+
+    The state is drawn by inverse CDF from a uniform, the response from a standard normal, both from
+    :mod:`jax.random`. :func:`expected_entropies` and :func:`choose_view` compute the same numbers for all
+    candidates at once with a kernel tuned for the CPU (``scrppl._planning_kernel``); with the same key
+    it agrees with this function to float32 rounding (``tests/test_planning.py``).
 
     Parameters
     ----------
@@ -465,9 +279,16 @@ def sampled_expected_entropy(
     Scalar expected entropy in nats.
     """
     _check_objective(objective)
-    u, eps = _draws(key, n_samples, mixture.mean.dtype)
-    lw, mean, var = mixture
-    return _sampled_entropies(u, eps, lw, mean[None], var[None], objective)[0]
+    k_state, k_response = jax.random.split(key)
+    log_w, mean, var = (x.ravel() for x in mixture)  # the K = N * O * A components
+    # M states k ~ p(n, o, theta | F): inverse CDF of the mixture weights
+    cdf = jnp.cumsum(jnp.exp(log_w))
+    u = jax.random.uniform(k_state, (n_samples,), mean.dtype)
+    k = jnp.minimum(jnp.searchsorted(cdf, u * cdf[-1], side="right"), cdf.shape[0] - 1)
+    # M responses f ~ Normal(mean_k, var_k)
+    f = mean[k] + jnp.sqrt(var[k]) * jax.random.normal(k_response, (n_samples,), mean.dtype)
+    # update with each response; average the posterior entropy
+    return posterior_entropy(mixture, f, objective).mean()
 
 
 @partial(jax.jit, static_argnames=("objective", "order"))
@@ -595,6 +416,36 @@ def _expected_entropies(key, model, belief, views, planner, objective, n_samples
     )
 
 
+def select_view(expected_entropy, cost, valid) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The decision rule of eq. 5: the valid candidate of least expected entropy plus cost.
+
+    ``V* = argmin_{V valid} E_f[H(p(o, theta | F, f_V))] + cost(V)`` (Meger et al. 2010, eq. 5; the
+    cost, e.g. ``motion_cost * angular_distance``, is zero in the paper). Every planner of this package
+    and its extensions decides with this function.
+
+    Parameters
+    ----------
+    expected_entropy
+        Score of each candidate, any shape, e.g. ``(C,)`` views or ``(C, D)`` (view, detector) pairs.
+    cost
+        Cost of each candidate in nats, broadcastable to ``expected_entropy`` (``0.0`` for none).
+    valid
+        Boolean mask of the candidates that may be chosen, the shape of ``expected_entropy``.
+
+    Returns
+    -------
+    index
+        Flat index of the chosen candidate (into ``scores.ravel()``); ``0`` when none is valid.
+    found
+        Whether any candidate was valid.
+    scores
+        ``expected_entropy + cost``, ``+inf`` for invalid candidates.
+    """
+    valid = jnp.asarray(valid, bool)
+    scores = jnp.where(valid, expected_entropy + cost, jnp.inf)
+    return jnp.argmin(scores.ravel()), valid.any(), scores
+
+
 def choose_view(
     key: jax.Array,
     model: ResponseModel,
@@ -701,46 +552,18 @@ def _choose_view(
         return views[idx], found, jnp.where(valid, 0.0, jnp.inf)
     n_c = views.shape[0]
     if max_candidates is not None and max_candidates < n_c:
-        # evaluate only the first `max_candidates` valid candidates and scatter the scores back
+        # evaluate only the first `max_candidates` valid candidates and scatter the values back
         k = max(int(max_candidates), 1)
         sel = jnp.nonzero(valid, size=k, fill_value=0)[0]
         sel_valid = valid[sel] & (jnp.arange(k) < valid.sum())
-        sub = _scores(
-            key,
-            model,
-            belief,
-            current,
-            views[sel],
-            sel_valid,
-            planner,
-            objective,
-            n_samples,
-            order,
-            motion_cost,
+        sub = _expected_entropies(
+            key, model, belief, views[sel], planner, objective, n_samples, order
         )
-        scores = jnp.full(n_c, jnp.inf, sub.dtype).at[sel].min(sub)
+        sub = jnp.where(sel_valid, sub, jnp.inf)
+        h = jnp.full(n_c, jnp.inf, sub.dtype).at[sel].min(sub)
     else:
-        scores = _scores(
-            key,
-            model,
-            belief,
-            current,
-            views,
-            valid,
-            planner,
-            objective,
-            n_samples,
-            order,
-            motion_cost,
-        )
-    idx = jnp.argmin(scores)
-    return views[idx], valid.any(), scores
-
-
-def _scores(
-    key, model, belief, current, views, valid, planner, objective, n_samples, order, motion_cost
-):
-    h = _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
+        h = _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
     n_a = model.mu.shape[2]
-    h = h + motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
-    return jnp.where(valid, h, jnp.inf)
+    cost = motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
+    idx, found, scores = select_view(h, cost, valid)
+    return views[idx], found, scores

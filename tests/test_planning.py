@@ -7,6 +7,7 @@ import pytest
 from scipy import integrate, stats
 from scipy.special import logsumexp
 
+from scrppl import _planning_kernel as K
 from scrppl import belief as B
 from scrppl import planning as P
 from scrppl.models.response import ResponseModel
@@ -135,7 +136,7 @@ def test_sampled_converges_to_quadrature_like_one_over_sqrt_m(rng, key, kind):
     mix = B.predictive_mixture(model, b, 2, 1, 0)
     exact = float(P.quadrature_expected_entropy(mix, "joint", order=48))
     # per-sample spread of the entropy, from a large independent sample
-    f = P._sample_responses(jax.random.fold_in(key, 99), mix, 4096)
+    f = K._sample_responses(jax.random.fold_in(key, 99), mix, 4096)
     sd = float(P.posterior_entropy(mix, f, "joint").std())
     errors = {}
     for m in (64, 1024, 16384):
@@ -181,13 +182,13 @@ def test_planner_draws_are_jax_random_numbers(key):
         k1, k2 = jax.random.split(k)
         want = (jax.random.uniform(k1, (300,)), jax.random.normal(k2, (300,)))
         for got in (
-            P._draws(k, 300, jnp.float32),
-            jax.jit(P._draws, static_argnums=(1, 2))(k, 300, jnp.float32),
+            K._draws(k, 300, jnp.float32),
+            jax.jit(K._draws, static_argnums=(1, 2))(k, 300, jnp.float32),
         ):
             np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(want[0]))
             np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(want[1]))
     keys = jax.random.split(key, 4)
-    u, eps = jax.vmap(lambda k: P._draws(k, 64, jnp.float32))(keys)
+    u, eps = jax.vmap(lambda k: K._draws(k, 64, jnp.float32))(keys)
     for i in range(4):
         k1, k2 = jax.random.split(keys[i])
         np.testing.assert_array_equal(np.asarray(u[i]), np.asarray(jax.random.uniform(k1, (64,))))
@@ -198,10 +199,10 @@ def test_fast_exp2_against_numpy():
     x = np.concatenate([np.linspace(-126.0, 127.0, 200001), [0.0, 0.5, -0.5, 1e-8]]).astype(
         np.float32
     )
-    got = np.asarray(P._exp2(jnp.asarray(x)), np.float64)
+    got = np.asarray(K._exp2(jnp.asarray(x)), np.float64)
     want = np.exp2(x.astype(np.float64))
     assert np.max(np.abs(got / want - 1.0)) < 3e-7
-    assert np.all(np.asarray(P._exp2(jnp.array([-128.0, -200.0, -1e30]))) == 0.0)
+    assert np.all(np.asarray(K._exp2(jnp.array([-128.0, -200.0, -1e30]))) == 0.0)
 
 
 @pytest.mark.parametrize("kind", B.FILTERS)
@@ -221,7 +222,7 @@ def test_sampled_kernel_equals_entropy_of_the_sampled_responses(rng, key, kind):
         for objective in B.OBJECTIVES:
             h = np.asarray(P.expected_entropies(key, model, b, views, "sampled", objective, 256))
             assert np.all(np.isfinite(h))
-            f = jax.vmap(lambda m: P._sample_responses(key, m, 256))(mixtures)
+            f = jax.vmap(lambda m: K._sample_responses(key, m, 256))(mixtures)
             want = jax.vmap(lambda m, f, o=objective: P.posterior_entropy(m, f, o).mean())(
                 mixtures, f
             )
@@ -230,6 +231,25 @@ def test_sampled_kernel_equals_entropy_of_the_sampled_responses(rng, key, kind):
             )
             np.testing.assert_allclose(h, np.asarray(want), atol=2e-6)
             np.testing.assert_allclose(np.asarray(one), np.asarray(want), atol=2e-6)
+
+
+def test_select_view_is_the_argmin_over_valid_candidates():
+    h = jnp.asarray([0.5, 0.1, 0.3, 0.2])
+    valid = jnp.asarray([True, False, True, True])
+    idx, found, scores = P.select_view(h, 0.0, valid)
+    assert int(idx) == 3 and bool(found)
+    np.testing.assert_array_equal(
+        np.asarray(scores), np.asarray([0.5, np.inf, 0.3, 0.2], np.float32)
+    )
+    # a cost moves the choice; (view, detector) pairs give a flat index
+    idx, _, _ = P.select_view(h, jnp.asarray([0.0, 0.0, 0.0, 0.2]), valid)
+    assert int(idx) == 2
+    idx, found, scores = P.select_view(
+        h.reshape(2, 2), jnp.asarray([0.0, 1.0]), valid.reshape(2, 2)
+    )
+    assert int(idx) == 2 and scores.shape == (2, 2)  # row 1, column 0
+    _, found, scores = P.select_view(h, 0.0, jnp.zeros(4, bool))
+    assert not bool(found) and np.all(np.isinf(np.asarray(scores)))
 
 
 def test_plug_in_is_biased(rng):

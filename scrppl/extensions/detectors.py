@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from scrppl import planning as P
+from scrppl._planning_kernel import _sampled_expected_entropy
 from scrppl.extensions.fusion import check_fused_belief, check_models, detector_mixture
 from scrppl.models.response import ResponseModel
 from scrppl.views import angular_distance, check_mask_shape
@@ -84,7 +85,8 @@ def _detector_expected_entropies(key, models, belief, views, planner, objective,
             views
         )
         if planner == "sampled":
-            h = jax.vmap(lambda m: P.sampled_expected_entropy(key, m, n_samples, objective))(
+            # P.sampled_expected_entropy, computed by the planner's CPU kernel (same draws)
+            h = jax.vmap(lambda m: _sampled_expected_entropy(key, m, n_samples, objective))(
                 mixtures
             )
         elif planner == "quadrature":
@@ -222,10 +224,8 @@ def _choose_view_and_detector(
         if costs.shape != (n_det,):
             raise ValueError(f"costs must have shape ({n_det},), got {costs.shape}")
         dist = angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
-        scores = h + cost_weight * costs[None, :] + (motion_cost * dist)[:, None]
-        scores = jnp.where(valid, scores, jnp.inf)
-        idx = jnp.argmin(scores.ravel())
-        found = valid.any()
+        cost = cost_weight * costs[None, :] + (motion_cost * dist)[:, None]
+        idx, found, scores = P.select_view(h, cost, valid)
     else:
         raise ValueError(f"unknown planner {planner!r}; expected one of {P.PLANNERS}")
     return views[idx // n_det], idx % n_det, found, scores

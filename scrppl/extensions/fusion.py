@@ -41,6 +41,7 @@ from jax.scipy.special import logsumexp
 
 from scrppl import planning as P
 from scrppl._checks import is_concrete
+from scrppl._planning_kernel import _sampled_expected_entropy
 from scrppl.belief import (
     FILTERS,
     OBJECTIVES,
@@ -52,11 +53,12 @@ from scrppl.belief import (
     instance_init,
     instance_update,
     naive_bayes_init,
+    naive_bayes_log_likelihood,
     objective_entropy,
     predictive_mixture,
     view_parameters,
 )
-from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.models.response import ResponseModel, check_response_model, normal_log_density
 
 __all__ = [
     "FusedInstanceBelief",
@@ -71,8 +73,6 @@ __all__ = [
     "fused_expected_entropy",
     "fused_expected_entropies",
 ]
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 class FusedInstanceBelief(NamedTuple):
@@ -182,17 +182,14 @@ def fused_init(
     raise ValueError(f"unknown filter {kind!r}; expected one of {FILTERS}")
 
 
-def _normal_logpdf(f, mean, var):
-    return -0.5 * ((f - mean) ** 2 / var + jnp.log(var) + _LOG_2PI)
-
-
 def fused_log_likelihood(
     models: Sequence[ResponseModel], responses, phi, e=0, s=0, mask=None
 ) -> jax.Array:
     """Naive-Bayes ``sum_d log p_d(f_d | o, theta)`` at robot view ``(phi, e, s)``, shape ``(O, A)``.
 
     ``p_d`` is detector ``d``'s marginal predictive, ``mean_n Normal(f_d; mu, sigma^2 + tau^2)`` at
-    relative azimuth ``(phi - theta) mod A`` (Meger et al. 2010, eq. 2).
+    relative azimuth ``(phi - theta) mod A`` (Meger et al. 2010, eq. 2): each term is the single-detector
+    :func:`scrppl.belief.naive_bayes_log_likelihood`.
 
     Parameters
     ----------
@@ -210,10 +207,9 @@ def fused_log_likelihood(
     f = _responses(responses, len(models))
     mask = _mask(mask, len(models))
     total = 0.0
-    for d, model in enumerate(models):
-        mu, sigma2, tau2 = view_parameters(model, phi, e, s)
+    for d, model in enumerate(models):  # naive Bayes: the detectors' log-likelihoods add up
         fd = jnp.where(mask[d], f[d], 0.0)
-        lp = logsumexp(_normal_logpdf(fd, mu, sigma2 + tau2), axis=0) - math.log(mu.shape[0])
+        lp = naive_bayes_log_likelihood(model, fd, phi, e, s)
         total = total + jnp.where(mask[d], lp, 0.0)
     return total
 
@@ -343,7 +339,7 @@ def _log_lik_components(cond, f):
     """``log p(f | o, theta, F)`` for responses ``f`` of shape ``(...,)``: shape ``(..., O, A)``."""
     log_pi, mean, var = cond
     fx = jnp.asarray(f)[..., None, None, None]
-    return logsumexp(log_pi + _normal_logpdf(fx, mean, var), axis=-3)
+    return logsumexp(log_pi + normal_log_density(fx, mean, var), axis=-3)
 
 
 def fused_posterior_entropy(
@@ -498,8 +494,8 @@ def _fused_expected_entropy(key, models, belief, phi, e, s, planner, objective, 
         mix = detector_mixture(models, belief, 0, phi, e, s)
         if planner == "quadrature":
             return P.quadrature_expected_entropy(mix, objective, order)
-        if planner == "sampled":
-            return P.sampled_expected_entropy(key, mix, n_samples, objective)
+        if planner == "sampled":  # P.sampled_expected_entropy, by the planner's CPU kernel
+            return _sampled_expected_entropy(key, mix, n_samples, objective)
     if planner == "quadrature":
         return _quadrature_fused(models, belief, phi, e, s, objective, order)
     if planner == "sampled":

@@ -389,6 +389,6 @@ def _choose_view_two_step(
             f"unknown two-step planner {planner!r}; expected 'quadrature' or 'sampled'"
         )
     n_a = model.mu.shape[2]
-    h = h + motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
-    scores = jnp.where(valid, h, jnp.inf)
-    return views[jnp.argmin(scores)], valid.any(), scores
+    cost = motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
+    idx, found, scores = P.select_view(h, cost, valid)
+    return views[idx], found, scores

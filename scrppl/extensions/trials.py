@@ -312,9 +312,8 @@ def run_multi_trial(
                 h = fused_expected_entropies(
                     k, models, belief, views, planner, objective, n_samples, order
                 )
-                h = h + motion_cost * angular_distance(views[:, 0], current[0], n_a)
-                idx = jnp.argmin(jnp.where(valid, h, jnp.inf))
-                found = valid.any()
+                cost = motion_cost * angular_distance(views[:, 0], current[0], n_a)
+                idx, found, _ = P.select_view(h, cost, valid)
             view = jnp.where(found, views[idx].astype(jnp.int32), current)
             belief, f, used = observe(belief, view, all_det, found)
             visited = visited.at[view[0], view[1], view[2]].set(True)

@@ -31,7 +31,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
-__all__ = ["ResponseModel", "log_prob", "sample", "predictive_moments", "check_response_model"]
+__all__ = [
+    "ResponseModel",
+    "normal_log_density",
+    "log_prob",
+    "sample",
+    "predictive_moments",
+    "check_response_model",
+]
+
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 class ResponseModel(NamedTuple):
@@ -156,6 +165,15 @@ def _gather(model: ResponseModel, o, a, e, s):
     return model.mu[:, o, a, e, s], model.sigma[:, o, a, e, s], model.tau[:, o]
 
 
+def normal_log_density(f, mean, var) -> jax.Array:
+    """``log Normal(f; mean, var)`` elementwise (arrays broadcast together): the one Gaussian density.
+
+    ``-((f - mean)^2 / var + log var + log 2 pi) / 2``. The response model, both filters of
+    :mod:`scrppl.belief` and the detector fusion of :mod:`scrppl.extensions.fusion` use it.
+    """
+    return -0.5 * ((f - mean) ** 2 / var + jnp.log(var) + _LOG_2PI)
+
+
 def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
     """Posterior-predictive log density of a response from a *new* instance.
 
@@ -178,9 +196,7 @@ def log_prob(model: ResponseModel, f, o, a, e=0, s=0) -> jax.Array:
     o, a, e, s = (jnp.asarray(x) for x in (o, a, e, s))
     shape = jnp.broadcast_shapes(jnp.shape(f), o.shape, a.shape, e.shape, s.shape)
     mu, sigma, tau = _gather(model, *(jnp.broadcast_to(x, shape) for x in (o, a, e, s)))
-    var = sigma**2 + tau**2
-    z = (jnp.broadcast_to(f, shape)[None] - mu) ** 2 / var
-    lp = -0.5 * (z + jnp.log(var) + math.log(2 * math.pi))
+    lp = normal_log_density(jnp.broadcast_to(f, shape)[None], mu, sigma**2 + tau**2)
     return logsumexp(lp, axis=0) - math.log(model.mu.shape[0])
 
 
