@@ -95,8 +95,12 @@ class Results:
 
     # -- stages --------------------------------------------------------------------------------------
     def dataset(self, root: str | Path | None = None):
-        """The multiview dataset the run was computed on (a :class:`~scrppl.datasets.MultiviewDataset`)."""
-        from scrppl.datasets import MultiviewDataset
+        """The multiview dataset the run was computed on (a :class:`~scrppl.datasets.MultiviewDataset`).
+
+        The synthetic cache or a copy of the Savarese dataset (:func:`~scrppl.datasets.open_dataset`;
+        a Savarese tree is split with the run's seed, as ``scrppl detect`` split it).
+        """
+        from scrppl.datasets import open_dataset
 
         where = Path(root) if root is not None else self.dataset_root
         if where is None:
@@ -104,7 +108,7 @@ class Results:
                 f"{self.root} has no {RUN_FILE} naming its dataset folder: pass it, "
                 "e.g. run.dataset('path/to/dataset')"
             )
-        return MultiviewDataset.load(where)
+        return open_dataset(where, split_seed=self.seed or 0, progress=False)
 
     def responses(self):
         """The response table (``responses.nc``), see :mod:`scrppl.responses`."""

@@ -1,8 +1,10 @@
 """``scrppl dataset make | info | sheet``: create, describe and look at the multiview dataset.
 
-* ``make``  generates the synthetic dataset of a profile into ``--root`` (resuming an interrupted run).
+* ``make``  generates the synthetic dataset of a profile into ``--root`` (resuming an interrupted run);
+  it refuses a ``--root`` that holds another dataset (such as a copy of the Savarese dataset).
 * ``info``  describes the dataset at ``--root``: a scrppl dataset folder (``index.csv``) or a copy of
-  Savarese et al.'s 3D Object Category dataset (see :mod:`scrppl.datasets.savarese`).
+  Savarese et al.'s 3D Object Category dataset (see :func:`scrppl.datasets.open_dataset`); for the
+  latter every image and mask is checked, and ``--seed`` is the seed of its instance split.
 * ``sheet`` draws ``<out>/figures/dataset-sheet.png`` (one instance per category from every azimuth)
   and ``<out>/figures/view-sphere.png`` (all views of one instance around its view sphere).
 """
@@ -14,9 +16,9 @@ import json
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common, dataset_root
+from scrppl.cli._common import add_common, dataset_root, open_dataset_of
 
-__all__ = ["register", "load_dataset", "describe", "format_summary", "DATASET_PROFILES"]
+__all__ = ["register", "describe", "format_summary", "DATASET_PROFILES"]
 
 #: Profiles of the synthetic dataset; ``tiny`` is the few-second configuration the tests use.
 DATASET_PROFILES = ("quick", "book", "full", "tiny")
@@ -110,35 +112,6 @@ def _no_subcommand(parser: argparse.ArgumentParser):
     return handler
 
 
-def load_dataset(root: Path, *, split_seed: int = 0, validate: bool = True, progress: bool = True):
-    """Load the dataset at ``root``: a saved :class:`MultiviewDataset` if ``index.csv`` is there, else Savarese.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``root`` does not exist (the message says how to create a dataset there).
-    """
-    from scrppl.datasets.core import INDEX_FILE, MultiviewDataset
-
-    root = Path(root)
-    if not root.is_dir():
-        raise FileNotFoundError(
-            f"no dataset at {root} (folder does not exist); create one with "
-            f"`scrppl dataset make --root {root}` or point --root at a copy of the Savarese dataset"
-        )
-    if (root / INDEX_FILE).exists():
-        return MultiviewDataset.load(root)
-    from scrppl.datasets.savarese import load_savarese
-
-    try:
-        return load_savarese(root, split_seed=split_seed, validate=validate, progress=progress)
-    except (FileNotFoundError, ValueError) as err:
-        raise type(err)(
-            f"{err}\n(there is no {INDEX_FILE} in {root}, so it was read as a copy of the Savarese "
-            "dataset; if it is an unfinished `scrppl dataset make`, run that again to complete it)"
-        ) from err
-
-
 def describe(dataset) -> dict:
     """:meth:`MultiviewDataset.summary` plus ``per_category``: instances, images and missing views of each.
 
@@ -188,9 +161,18 @@ def format_summary(summary: dict) -> str:
 
 
 def _make(args: argparse.Namespace) -> int:
+    from scrppl.datasets import dataset_layout
     from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic
 
     root = dataset_root(args)
+    layout = dataset_layout(root)
+    if layout in ("savarese", "index"):
+        what = "a copy of the Savarese dataset" if layout == "savarese" else "a saved dataset index"
+        raise ValueError(
+            f"{root} holds {what}, not a synthetic dataset: `scrppl dataset make` only generates the "
+            f"synthetic dataset. Use that dataset as it is (`scrppl dataset info --root {root}`, "
+            f"`scrppl reproduce --root {root}`), or choose another --root to generate into"
+        )
     config = SyntheticConfig.for_profile(args.profile)
     dataset = make_synthetic(
         root, config, args.seed, workers=args.workers, progress=not args.no_progress
@@ -200,12 +182,7 @@ def _make(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    dataset = load_dataset(
-        dataset_root(args),
-        split_seed=args.seed,
-        validate=not args.no_validate,
-        progress=not args.no_progress,
-    )
+    dataset = open_dataset_of(args, validate=not args.no_validate, progress=not args.no_progress)
     summary = describe(dataset)
     if args.json:
         json.dump(summary, sys.stdout, indent=2)
@@ -218,12 +195,7 @@ def _info(args: argparse.Namespace) -> int:
 def _sheet(args: argparse.Namespace) -> int:
     from scrppl.plotting.dataset import contact_sheet, save_figure, sheet_instances, view_sphere
 
-    dataset = load_dataset(
-        dataset_root(args),
-        split_seed=args.seed,
-        validate=not args.no_validate,
-        progress=not args.no_progress,
-    )
+    dataset = open_dataset_of(args, validate=not args.no_validate, progress=not args.no_progress)
     figures = Path(args.out) / "figures"
     try:
         dataset.grid.check(0, args.elevation, args.scale)

@@ -1,5 +1,9 @@
 """``scrppl detect``: train the detectors, score the dataset, write the response table and figures.
 
+The dataset is the one at ``--root`` (:func:`scrppl.datasets.open_dataset`): the synthetic cache of
+``--profile`` and ``--seed`` by default, or any scrppl dataset folder or copy of Savarese et al.'s 3D
+Object Category dataset (then ``--seed`` also seeds its instance split).
+
 Writes under ``--out``:
 
 * ``detectors/<family>-<target>.npz`` -- trained detectors (reused when present with the same settings);
@@ -19,7 +23,7 @@ import json
 import time
 from pathlib import Path
 
-from scrppl.cli._common import add_common, dataset_root
+from scrppl.cli._common import add_common, open_dataset_of
 
 DEFAULT_FAMILIES = "sift,bof,dpm"
 
@@ -70,20 +74,12 @@ def _split_list(text: str | None) -> list[str] | None:
 
 def handler(args: argparse.Namespace) -> int:
     """Run the detection stage; returns the exit status."""
-    from scrppl.datasets.core import MultiviewDataset
     from scrppl.detectors import detector_class
     from scrppl.detectors.evaluation import quality_summary
     from scrppl.detectors.scoring import score_dataset
     from scrppl.detectors.train import DEFAULT_MAX_NEGATIVES, train_detectors
 
-    root = dataset_root(args)
-    try:
-        dataset = MultiviewDataset.load(root)
-    except FileNotFoundError as err:
-        raise FileNotFoundError(
-            f"no dataset at {root} ({err}); generate it first with "
-            f"`scrppl dataset make --profile {args.profile} --seed {args.seed}` or pass --root"
-        ) from err
+    dataset = open_dataset_of(args, progress=not args.quiet)
     families = _split_list(args.families)
     for fam in families:
         detector_class(fam)  # ValueError naming an unknown family

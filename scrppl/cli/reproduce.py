@@ -3,7 +3,9 @@
 Stages (each is also a command of its own):
 
 1. ``dataset``  -- generate the synthetic dataset into the cache (resumes; a complete one is reused) and draw
-   its contact sheet;
+   its contact sheet. When ``--root`` holds another dataset -- a copy of Savarese et al.'s 3D Object
+   Category dataset, or a saved index (:func:`scrppl.datasets.dataset_layout`) -- nothing is generated:
+   that dataset is indexed and checked (``scrppl dataset info``) and its contact sheet drawn;
 2. ``detect``   -- train the detectors and score every image (``responses.nc``);
 3. ``fit``      -- the paper's Gaussians and the hierarchical models (``models/``);
 4. ``simulate`` -- the sequential-recognition experiment (``trials.nc``);
@@ -27,7 +29,7 @@ from pathlib import Path
 
 from scrppl.cli._common import add_common, dataset_root
 
-__all__ = ["register", "Stage", "stages", "is_current"]
+__all__ = ["register", "Stage", "stages", "is_current", "uses_existing_dataset"]
 
 
 @dataclass(frozen=True)
@@ -53,13 +55,30 @@ def is_current(stage: Stage) -> bool:
 
 def stages(args: argparse.Namespace) -> list[Stage]:
     """The pipeline for these arguments, in order."""
+    from scrppl.datasets.core import INDEX_FILE
+
     root = dataset_root(args)
     out = Path(args.out)
     common = ("--seed", str(args.seed), "--profile", args.profile)
     where = ("--root", str(root))
     outdir = ("--out", str(out))
-    return [
-        Stage(
+    sheet = out / "figures" / "dataset-sheet.png"
+    if uses_existing_dataset(root):
+        # A Savarese tree has no index file: the folder itself stands for its contents.
+        index = root / INDEX_FILE if (root / INDEX_FILE).exists() else root
+        dataset = Stage(
+            "dataset",
+            "scrppl.cli.dataset",
+            (
+                ("dataset", "info", *where, "--seed", str(args.seed)),
+                ("dataset", "sheet", *where, *outdir, "--seed", str(args.seed), "--no-validate"),
+            ),
+            (index,),
+            (sheet,),
+        )
+    else:
+        index = root / INDEX_FILE
+        dataset = Stage(
             "dataset",
             "scrppl.cli.dataset",
             (
@@ -67,13 +86,15 @@ def stages(args: argparse.Namespace) -> list[Stage]:
                 ("dataset", "sheet", *where, *outdir, "--seed", str(args.seed)),
             ),
             (),
-            (root / "index.csv", out / "figures" / "dataset-sheet.png"),
-        ),
+            (index, sheet),
+        )
+    return [
+        dataset,
         Stage(
             "detect",
             "scrppl.cli.detect",
             (("detect", *where, *outdir, *common),),
-            (root / "index.csv",),
+            (index,),
             (out / "responses.nc",),
         ),
         Stage(
@@ -103,6 +124,18 @@ def stages(args: argparse.Namespace) -> list[Stage]:
     ]
 
 
+def uses_existing_dataset(root: Path) -> bool:
+    """Whether ``root`` holds a dataset that is used as it is rather than generated.
+
+    True for a copy of the Savarese dataset and for a saved index of another source; false for the
+    synthetic cache (complete or unfinished), a missing folder and anything else, which the dataset
+    stage hands to ``scrppl dataset make``.
+    """
+    from scrppl.datasets import dataset_layout
+
+    return dataset_layout(root) in ("savarese", "index")
+
+
 def _run(args: argparse.Namespace) -> int:
     from scrppl.cli import main
     from scrppl.report import write_report
@@ -112,6 +145,11 @@ def _run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_run_info(out, profile=args.profile, seed=args.seed, dataset_root=dataset_root(args))
     timings: dict[str, float | str] = {}
+    if uses_existing_dataset(dataset_root(args)):
+        print(
+            f"[reproduce] dataset: using the dataset at {dataset_root(args)} (not generating one)",
+            flush=True,
+        )
     for stage in stages(args):
         if importlib.util.find_spec(stage.module) is None:
             print(f"[reproduce] {stage.name}: not available in this version, skipped", flush=True)

@@ -1,6 +1,7 @@
 """Multiview object-category datasets: the index, the Savarese loader and the synthetic dataset.
 
-The index is `MultiviewDataset`.
+The index is `MultiviewDataset`; `open_dataset(root)` opens the dataset in a folder, whether it is a
+saved index (the synthetic cache) or a copy of the Savarese dataset (`dataset_layout` tells which).
 
 The loaders and generators are imported lazily by their submodules (``scrppl.datasets.savarese``,
 ``scrppl.datasets.synthetic``) because they pull in OpenCV and the renderer.
@@ -16,6 +17,7 @@ from scrppl.datasets.core import (
     read_ascii_mask,
     write_ascii_mask,
 )
+from scrppl.datasets.folders import dataset_layout, open_dataset
 
 __all__ = [
     "DEFAULT_SPLIT_PROPORTIONS",
@@ -24,6 +26,8 @@ __all__ = [
     "MultiviewDataset",
     "assign_splits",
     "bbox_from_mask",
+    "dataset_layout",
+    "open_dataset",
     "read_ascii_mask",
     "write_ascii_mask",
 ]

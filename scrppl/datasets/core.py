@@ -60,6 +60,10 @@ SPLITS = ("train", "fit", "test")
 DEFAULT_SPLIT_PROPORTIONS = (0.4, 0.3, 0.3)
 INDEX_FILE = "index.csv"
 META_FILE = "dataset.json"
+#: ``meta["generator"]`` of a dataset made by :func:`scrppl.datasets.synthetic.make_synthetic`.
+SYNTHETIC_GENERATOR = "scrppl.datasets.synthetic"
+#: The file the synthetic generator writes first (its configuration and seed), before any image.
+SYNTHETIC_PROVENANCE_FILE = "synthetic.json"
 
 
 # -- masks ------------------------------------------------------------------------------------------

@@ -74,6 +74,7 @@ from scrppl.views import SAVARESE_GRID
 
 __all__ = [
     "load_savarese",
+    "looks_like_savarese",
     "parse_view_name",
     "IMAGE_SUFFIXES",
     "MASK_SUFFIXES",
@@ -269,6 +270,30 @@ def _validate(root: Path, index: pd.DataFrame, progress: bool) -> pd.DataFrame:
     out = index.copy()
     out[["x0", "y0", "x1", "y1"]] = boxes
     return out
+
+
+def looks_like_savarese(root: str | Path) -> bool:
+    """Whether ``root`` has the shape of a Savarese tree: a category folder holding a ``<cat>_<N>`` folder.
+
+    A cheap test of the folder names only (two directory listings per category): it says which loader
+    to use, and :func:`load_savarese` then checks every file. Hidden folders are ignored; the category
+    name is compared case-insensitively, as the loader does.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        return False
+    for cat_dir in root.iterdir():
+        if not (cat_dir.is_dir() and _visible(cat_dir)):
+            continue
+        for inst_dir in cat_dir.iterdir():
+            m = _INSTANCE_NAME.match(inst_dir.name)
+            if (
+                m is not None
+                and inst_dir.is_dir()
+                and m.group("prefix").lower() == cat_dir.name.lower()
+            ):
+                return True
+    return False
 
 
 def load_savarese(

@@ -39,6 +39,8 @@ from scrppl._io import atomic_path
 from scrppl.datasets.core import (
     INDEX_FILE,
     META_FILE,
+    SYNTHETIC_GENERATOR,
+    SYNTHETIC_PROVENANCE_FILE,
     MultiviewDataset,
     assign_splits,
     bbox_from_mask,
@@ -68,7 +70,7 @@ __all__ = [
 #: Bumped whenever the renderer's output changes, so stale folders are recognised.
 RENDER_VERSION = 1
 #: Provenance file written at the start of a generation.
-PROVENANCE_FILE = "synthetic.json"
+PROVENANCE_FILE = SYNTHETIC_PROVENANCE_FILE
 
 
 # -- per-instance and per-view randomness ----------------------------------------------------------
@@ -237,7 +239,7 @@ def _worker_init() -> None:
 # -- the generator ---------------------------------------------------------------------------------
 def _provenance(config: SyntheticConfig, seed: int) -> dict[str, Any]:
     return {
-        "generator": "scrppl.datasets.synthetic",
+        "generator": SYNTHETIC_GENERATOR,
         "render_version": RENDER_VERSION,
         "seed": int(seed),
         "config": config.to_dict(),
