@@ -10,12 +10,13 @@ SEED ?= 0
 # Test workers: pytest-xdist processes (2 suits a 2-core machine).
 WORKERS ?= 2
 
-.PHONY: help reproduce quick test lint lock book clean-results
+.PHONY: help reproduce quick test lint lock book student clean-results
 
 help:
 	@echo "make reproduce   the whole pipeline on the embedded default dataset -> $(OUT)/ (PROFILE=quick for a short run)"
 	@echo "make test        the test suite"
 	@echo "make book        the executed HTML book, offline -> book/_build/html (then a browser check)"
+	@echo "make student     student copies of the exercise notebooks (solutions replaced by stubs) -> build/student"
 	@echo "make lint        ruff"
 	@echo "make lock        regenerate environment.lock from pyproject.toml (needs uv, installed in .venv)"
 
@@ -31,8 +32,12 @@ quick: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -n $(WORKERS) -q
 
+# The book executes against the small `book` profile (results-book/); RESULTS=results uses a full run.
 book: $(STAMP)
-	SEED=$(SEED) bash scripts/build-book.sh
+	SEED=$(SEED) $(if $(RESULTS),SCRPPL_RESULTS=$(RESULTS)) bash scripts/build-book.sh
+
+student: $(STAMP)
+	$(VENV)/bin/python scripts/make_student.py --out build/student
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

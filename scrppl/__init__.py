@@ -18,7 +18,8 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.extensions` -- beyond the paper: two-step lookahead, choosing which detector to run,
   fusing several detectors, and multi-detector trials;
 * :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib);
-* :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object.
+* :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object;
+* :mod:`scrppl.exercises` -- feedback on the book's exercises (``check("7.1", answer)``).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ _SUBMODULES = (
     "belief",
     "datasets",
     "detectors",
+    "exercises",
     "extensions",
     "models",
     "planning",
@@ -44,7 +46,15 @@ _SUBMODULES = (
     "sim",
 )
 
-__all__ = ["open_results", "views", "ViewGrid", "SAVARESE_GRID", "relative_azimuth", "__version__", *_SUBMODULES]
+__all__ = [
+    "open_results",
+    "views",
+    "ViewGrid",
+    "SAVARESE_GRID",
+    "relative_azimuth",
+    "__version__",
+    *_SUBMODULES,
+]
 
 
 def __getattr__(name: str):
