@@ -1,13 +1,17 @@
-"""The Markdown report that ``scrppl reproduce`` writes: every figure and the key numbers.
+"""The Markdown report that ``scrppl reproduce`` writes: a summary of the key numbers and every figure.
 
 It only reads what the stages wrote under the output folder (JSON, CSV and PNG files), so it can be rebuilt
 at any time with ``scrppl reproduce`` (stages that are current are skipped) or :func:`write_report`.
+
+Numbers in ``report.md`` are rounded to what they can carry (see :data:`ROUNDING`); the full-precision
+tables behind them are written beside it as ``report-*.csv`` and linked from the report.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,150 +19,359 @@ from scrppl._io import atomic_path
 
 __all__ = ["write_report"]
 
-#: Figures in the order the paper numbers them, with captions; any other PNG under figures/ follows.
-FIGURE_CAPTIONS = (
+#: Decimals shown in the Markdown tables, by kind of number (the CSV files keep full precision).
+ROUNDING = {
+    "average precision": 2,
+    "azimuth dependence": 2,
+    "log predictive density": 3,
+    "coverage": 2,
+    "R-hat": 3,
+    "ESS": 0,
+    "E-BFMI": 2,
+    "seconds": 1,
+    "views": 2,
+    "probability / entropy / ECE": 3,
+}
+
+#: Figure groups in the paper's order: (file-name prefix, heading, what the figure is).
+FIGURE_GROUPS = (
     (
-        "dataset-sheet",
-        "The synthetic multiview dataset: one instance per category from the 8 azimuths.",
+        "fig1-",
+        "Fig. 1: detector response over viewpoint",
+        "One test instance of each target seen from every azimuth, with the detector's response and "
+        "its detections drawn.",
     ),
-    ("view-sphere", "The 72 views (8 azimuths x 3 elevations x 3 scales) around one object."),
-    ("fig1-", "Fig. 1: detector response of one instance over azimuth, with detections drawn."),
-    ("responses-", "Mean detector response by azimuth, positives vs negatives."),
     (
         "fig2-",
-        "Fig. 2: DPM viewpoint detection functions (posterior predictive; positives left, negatives right).",
+        "Fig. 2: DPM viewpoint detection functions",
+        "Posterior predictive of the DPM response over azimuth for the target category (positives "
+        "left, negatives right).",
     ),
-    ("fig3-", "Fig. 3: viewpoint detection functions of SIFT matching and bag-of-features."),
+    (
+        "fig3-",
+        "Fig. 3: viewpoint detection functions of SIFT matching and bag-of-features",
+        "The same functions for the two weaker detectors: flatter over azimuth and less separated.",
+    ),
+    (
+        "fig4-",
+        "Fig. 4: the posterior over presence and pose",
+        "p(present, pose | F) (solid) and p(absent, pose | F) (dashed) on polar axes after each view "
+        "of one trial; the x marks the true pose, the circle the robot's azimuth.",
+    ),
+    (
+        "fig5-",
+        "Fig. 5: entropy planning vs a random unseen view",
+        "Per target and method: the TP-minus-TN statistic (left) and the class entropy H(o | F) "
+        "(right) against the number of views, entropy planner vs random view, with bootstrap 95% "
+        "intervals.",
+    ),
+)
+
+#: Captions of the figures outside the paper's numbering, by file-name prefix.
+OTHER_CAPTIONS = (
+    (
+        "dataset-sheet",
+        "The synthetic multiview dataset: one instance per category from each azimuth.",
+    ),
+    ("view-sphere", "The views (azimuths x elevations x scales) around one object."),
+    ("responses-", "Mean detector response by azimuth, positives vs negatives."),
     ("trace-", "MCMC trace of one hierarchical fit."),
     ("forest-", "Posterior intervals of one hierarchical fit."),
-    ("fig4-", "Fig. 4: the posterior over presence and pose evolving over 4 views."),
-    ("fig5-", "Fig. 5: entropy planning vs a random unseen view over the trials."),
     (
         "calibration",
         "Reliability of p(target present | responses): naive Bayes vs instance-aware filter.",
     ),
 )
 
+#: Which stage writes each input, for the line that says an input is missing.
+_STAGE_OF = {
+    "timings.json": "reproduce",
+    "detectors/quality.json": "detect",
+    "models/diagnostics.json": "fit",
+    "models/heldout.csv": "fit",
+    "simulate-summary.json": "simulate",
+}
 
-def _md_table(rows: list[dict[str, Any]], columns: list[str] | None = None) -> str:
+_KINDS = ("gaussian", "hierarchical")
+
+
+# --------------------------------------------------------------------------------------- formatting
+
+
+def _num(x: Any, digits: int) -> str:
+    """``x`` rounded to ``digits`` decimals; '' for a missing value and 'n/a' for NaN or None."""
+    if x is None:
+        return "n/a"
+    if isinstance(x, str):
+        if not x.strip():
+            return ""
+        try:
+            x = float(x)
+        except ValueError:
+            return x
+    x = float(x)
+    if not math.isfinite(x):
+        return "n/a"
+    text = f"{x:.{digits}f}"
+    return text.lstrip("-") if float(text) == 0 else text  # no "-0.000"
+
+
+def _pm(mean: Any, se: Any, digits: int) -> str:
+    """``mean ± se`` (the s.e. dropped when it is not estimable)."""
+    m, s = _num(mean, digits), _num(se, digits)
+    return m if s in ("", "n/a") else f"{m} ± {s}"
+
+
+def _md_table(rows: list[dict[str, str]], columns: list[str]) -> str:
+    """A Markdown table of already formatted cells."""
     if not rows:
         return "_(empty)_\n"
-    columns = columns or list(rows[0].keys())
-
-    def fmt(v: Any) -> str:
-        if isinstance(v, float):
-            return f"{v:.4g}"
-        return str(v)
-
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
+    lines += ["| " + " | ".join(str(r.get(c, "")) for c in columns) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
-def _json_block(obj: Any) -> str:
-    return "```json\n" + json.dumps(obj, indent=2, sort_keys=True)[:6000] + "\n```\n"
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> str:
+    """Write ``rows`` (full precision) to ``path``; return the Markdown link to it."""
+    columns: list[str] = []
+    for r in rows:
+        columns += [k for k in r if k not in columns]
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows(rows)
+    return f"[`{path.name}`]({path.name})"
 
 
-def _section_json(title: str, path: Path) -> str:
+def _missing(title: str, rel: str, why: str = "") -> str:
+    stage = _STAGE_OF.get(rel, "")
+    reason = why or (
+        f"`{rel}` was not written (the `{stage}` stage did not run)"
+        if stage
+        else f"`{rel}` is missing"
+    )
+    return f"## {title}\n\n_Not available: {reason}._\n"
+
+
+def _load_json(out: Path, rel: str, title: str) -> tuple[Any, str]:
+    """``(data, "")``, or ``(None, section saying why not)``."""
+    path = out / rel
     if not path.exists():
-        return ""
+        return None, _missing(title, rel)
     try:
-        data = json.loads(path.read_text())
+        return json.loads(path.read_text()), ""
     except json.JSONDecodeError as err:
-        return f"## {title}\n\n`{path.name}` could not be read: {err}\n\n"
-    if isinstance(data, list) and data and isinstance(data[0], dict):
-        body = _md_table(data)
-    else:
-        body = _json_block(data)
-    return f"## {title}\n\nFrom `{path.name}`:\n\n{body}\n"
+        return None, _missing(title, rel, f"`{rel}` could not be read: {err}")
 
 
-def _section_csv(title: str, path: Path) -> str:
-    if not path.exists():
-        return ""
-    with path.open() as fh:
-        rows = list(csv.DictReader(fh))
-    return f"## {title}\n\nFrom `{path.name}`:\n\n{_md_table(rows)}\n"
+# ----------------------------------------------------------------------------------------- sections
 
 
-def _section_detectors(path: Path) -> str:
-    if not path.exists():
-        return ""
-    q = json.loads(path.read_text())
+def _section_timings(out: Path) -> str:
+    title = "Stage timings"
+    t, msg = _load_json(out, "timings.json", title)
+    if msg:
+        return msg
+    rows = [{"stage": k, "seconds": _num(v, 1)} for k, v in t.items()]
+    total = sum(float(v) for v in t.values() if isinstance(v, int | float))
+    rows.append({"stage": "**total**", "seconds": _num(total, 1)})
+    return f"## {title}\n\nWall time of each stage (s), from `timings.json`:\n\n" + _md_table(
+        rows, ["stage", "seconds"]
+    )
+
+
+def _section_detectors(out: Path) -> str:
+    title = "Detectors"
+    q, msg = _load_json(out, "detectors/quality.json", title)
+    if msg:
+        return msg
     ap = q.get("average_precision", {})
     cats = sorted({c for fam in ap.values() for c in fam})
+    mean_ap = q.get("mean_average_precision", {})
     rows = [
         {
             "detector": fam,
-            **{c: ap[fam].get(c, "") for c in cats},
-            "mean": q.get("mean_average_precision", {}).get(fam, ""),
+            **{c: _num(ap[fam].get(c, ""), 2) for c in cats},
+            "mean": _num(mean_ap.get(fam, ""), 2),
         }
         for fam in ap
     ]
+    text = (
+        f"## {title}\n\nOne-vs-rest average precision on the `{q.get('split', 'test')}` split "
+        "(from `detectors/quality.json`):\n\n" + _md_table(rows, ["detector", *cats, "mean"])
+    )
     dep = q.get("azimuth_dependence", {})
-
-    def _num(x: float | None) -> str:  # None: not estimable (e.g. one test instance of a category)
-        return "n/a" if x is None else f"{x:.2f}"
-
     dep_rows = [
         {
             "detector": fam,
-            **{c: f"{_num(v['positive'])} / {_num(v['negative'])}" for c, v in per.items()},
+            **{
+                c: f"{_num(v.get('positive'), 2)} / {_num(v.get('negative'), 2)}"
+                for c, v in per.items()
+            },
         }
         for fam, per in dep.items()
     ]
-    text = f"## Detectors\n\nOne-vs-rest average precision on the `{q.get('split', 'test')}` split (from `detectors/quality.json`):\n\n"
-    text += _md_table(rows, ["detector", *cats, "mean"])
     if dep_rows:
+        definition = q.get("azimuth_dependence_definition", "")
         text += (
-            "\nAzimuth dependence, positives / negatives ("
-            + q.get("azimuth_dependence_definition", "")
-            + "):\n\n"
+            "\nAzimuth dependence of the response, positives / negatives"
+            + (f" ({definition})" if definition else "")
+            + ":\n\n"
+            + _md_table(dep_rows, ["detector", *cats])
         )
-        text += _md_table(dep_rows, ["detector", *cats])
-    if "seconds" in q:
-        text += "\nWall time (s): " + ", ".join(f"{k} {v}" for k, v in q["seconds"].items()) + "\n"
-    return text + "\n"
+    if isinstance(q.get("seconds"), dict):
+        text += (
+            "\nWall time: "
+            + ", ".join(f"{k} {_num(v, 1)} s" for k, v in q["seconds"].items())
+            + ".\n"
+        )
+    return text
 
 
-def _section_diagnostics(path: Path) -> str:
-    if not path.exists():
-        return ""
-    diag = json.loads(path.read_text())
-    rows = []
+def _section_diagnostics(out: Path) -> str:
+    title = "MCMC diagnostics of the hierarchical fits"
+    diag, msg = _load_json(out, "models/diagnostics.json", title)
+    if msg:
+        return msg
+    rows, full = [], []
     for fit, d in sorted(diag.items()):
         if not isinstance(d, dict) or not isinstance(d.get("rhat_max"), dict):
             continue
+        attempts = " -> ".join(f"{a['target_accept_prob']:g}" for a in d.get("attempts", []))
+        ebfmi = d.get("ebfmi") or [float("nan")]
         rows.append(
             {
                 "fit": fit,
                 "ok": "yes" if d.get("ok") else "NO",
-                "max R-hat": max(d["rhat_max"].values()),
-                "min bulk ESS": min(d["ess_bulk_min"].values()),
-                "min tail ESS": min(d["ess_tail_min"].values()),
-                "divergences": d.get("divergences", ""),
-                "min E-BFMI": min(d.get("ebfmi", [float("nan")])),
-                "target accept": " -> ".join(
-                    f"{a['target_accept_prob']:g}" for a in d.get("attempts", [])
-                ),
+                "max R-hat": _num(max(d["rhat_max"].values()), 3),
+                "min bulk ESS": _num(min(d.get("ess_bulk_min", {"": None}).values()), 0),
+                "min tail ESS": _num(min(d.get("ess_tail_min", {"": None}).values()), 0),
+                "divergences": str(d.get("divergences", "")),
+                "min E-BFMI": _num(min(ebfmi), 2),
+                "target accept": attempts,
                 "failures": "; ".join(d.get("failures", [])),
             }
         )
+        for param, rhat in d["rhat_max"].items():
+            full.append(
+                {
+                    "fit": fit,
+                    "parameter": param,
+                    "rhat_max": rhat,
+                    "ess_bulk_min": d.get("ess_bulk_min", {}).get(param, ""),
+                    "ess_tail_min": d.get("ess_tail_min", {}).get(param, ""),
+                    "fit_ok": bool(d.get("ok")),
+                    "divergences": d.get("divergences", ""),
+                    "ebfmi_min": min(ebfmi),
+                    "target_accept": attempts,
+                }
+            )
     rows.sort(key=lambda r: (r["ok"] == "yes", r["fit"]))  # failures first
     n_ok = sum(r["ok"] == "yes" for r in rows)
+    link = _write_csv(out / "report-diagnostics.csv", full)
+    th = diag.get("thresholds", {})
     return (
-        f"## MCMC diagnostics of the hierarchical fits\n\n{n_ok} of {len(rows)} fits pass every check "
-        "(R-hat <= 1.01, bulk ESS >= 400, no divergences, E-BFMI >= 0.3); a fit that failed at the "
-        "first acceptance target was refitted at the second (`target accept`); from "
-        "`models/diagnostics.json`:\n\n" + _md_table(rows) + "\n"
+        f"## {title}\n\n**{n_ok} of {len(rows)} fits pass every check** (R-hat <= "
+        f"{th.get('rhat_max', 1.01)}, bulk ESS >= {_num(th.get('ess_bulk_min', 400), 0)}, no "
+        f"divergences, E-BFMI >= {th.get('ebfmi_min', 0.3)}); a fit that failed at the first acceptance "
+        "target was refitted at the next (`target accept`). Worst parameter of each fit, from "
+        f"`models/diagnostics.json`; every parameter in {link}.\n\n"
+        + _md_table(rows, list(rows[0]) if rows else [])
     )
 
 
-def _section_experiment(path: Path) -> str:
-    if not path.exists():
-        return ""
-    summ = json.loads(path.read_text())
-    rows = []
+def _heldout_wide(rows: list[dict[str, str]]) -> list[dict[str, Any]]:
+    """Pivot ``heldout.csv`` to one row per (detector, target, class), the model kinds side by side."""
+    value_cols = [
+        c
+        for c in (rows[0] if rows else {})
+        if c not in ("detector", "target", "kind", "class", "n_instances", "n_responses")
+    ]
+    wide: dict[tuple[str, str, str], dict[str, Any]] = {}
+    for r in rows:
+        key = (r.get("detector", ""), r.get("target", ""), r.get("class", "all"))
+        w = wide.setdefault(
+            key,
+            {
+                "detector": key[0],
+                "target": key[1],
+                "class": key[2],
+                "n_instances": r.get("n_instances", ""),
+                "n_responses": r.get("n_responses", ""),
+            },
+        )
+        for c in value_cols:
+            w[f"{r.get('kind', '')}_{c}"] = float(r[c]) if r[c] not in ("", None) else float("nan")
+    return list(wide.values())
+
+
+def _mean(values: list[float]) -> float:
+    vals = [v for v in values if math.isfinite(v)]
+    return sum(vals) / len(vals) if vals else float("nan")
+
+
+def _section_heldout(out: Path) -> str:
+    title = "Held-out comparison of viewpoint models"
+    rel = "models/heldout.csv"
+    if not (out / rel).exists():
+        return _missing(title, rel)
+    with (out / rel).open() as fh:
+        wide = _heldout_wide(list(csv.DictReader(fh)))
+    link = _write_csv(out / "report-heldout.csv", wide)
+    allc = [w for w in wide if w["class"] == "all"]
+    g, h = _KINDS
+
+    def get(w: dict[str, Any], kind: str, col: str) -> float:
+        return w.get(f"{kind}_{col}", float("nan"))
+
+    rows = [
+        {
+            "detector": w["detector"],
+            "target": w["target"],
+            "n": str(w["n_instances"]),
+            "single, Gaussian": _pm(get(w, g, "lpd_single"), get(w, g, "lpd_single_se"), 3),
+            "single, hierarchical": _pm(get(w, h, "lpd_single"), get(w, h, "lpd_single_se"), 3),
+            "joint, Gaussian": _pm(get(w, g, "lpd_joint"), get(w, g, "lpd_joint_se"), 3),
+            "joint, hierarchical": _pm(get(w, h, "lpd_joint"), get(w, h, "lpd_joint_se"), 3),
+            "joint gain": _num(get(w, h, "lpd_joint") - get(w, g, "lpd_joint"), 3),
+            "90% cover, G / H": f"{_num(get(w, g, 'cover90'), 2)} / {_num(get(w, h, 'cover90'), 2)}",
+        }
+        for w in sorted(allc, key=lambda w: (w["detector"], w["target"]))
+    ]
+    detectors = sorted({w["detector"] for w in allc})
+    means = []
+    for det in detectors:
+        ws = [w for w in allc if w["detector"] == det]
+        row = {"detector": det, "targets": str(len(ws))}
+        for label, col, digits in (
+            ("single", "lpd_single", 3),
+            ("joint", "lpd_joint", 3),
+            ("50% cover", "cover50", 2),
+            ("90% cover", "cover90", 2),
+        ):
+            for kind, short in ((g, "Gaussian"), (h, "hierarchical")):
+                row[f"{label}, {short}"] = _num(_mean([get(w, kind, col) for w in ws]), digits)
+        means.append(row)
+    return (
+        f"## {title}\n\nLog predictive density of the held-out instances' responses, per response "
+        "(nats; higher is better), ± its standard error over instances: `single` scores each response "
+        "alone, `joint` scores an instance's responses together (where the hierarchical model's "
+        "instance effect should pay off; for the Gaussian model, which has none, the two agree); `joint gain` = hierarchical − Gaussian. `90% cover` is the "
+        "share of responses inside the 90% predictive interval (0.90 when calibrated). Both classes "
+        f"together, from `{rel}`; the absent / present split and every column in {link}.\n\n"
+        "Mean over targets, per detector:\n\n"
+        + _md_table(means, list(means[0]) if means else [])
+        + "\nPer detector and target:\n\n"
+        + _md_table(rows, list(rows[0]) if rows else [])
+    )
+
+
+def _section_experiment(out: Path) -> str:
+    title = "Sequential recognition experiment"
+    summ, msg = _load_json(out, "simulate-summary.json", title)
+    if msg:
+        return msg
+    rows, steps_rows, full = [], [], []
     for target, t in summ.get("targets", {}).items():
         for exp in ("paper_experiment", "large_experiment"):
             for method, m in t.get(exp, {}).items():
@@ -166,93 +379,209 @@ def _section_experiment(path: Path) -> str:
                     continue
                 v = m["views_to_confidence"]
                 d = m.get("views_to_confidence_difference_95ci", {})
+                name = exp.replace("_experiment", "")
                 rows.append(
                     {
                         "target": target,
-                        "experiment": exp.replace("_experiment", ""),
+                        "experiment": name,
                         "method": method,
-                        "views, entropy": v.get("sampled", ""),
-                        "views, random": v.get("random", ""),
-                        "difference [95% CI]": f"{d.get('mean', float('nan')):.3f} [{d.get('lo', float('nan')):.3f}, {d.get('hi', float('nan')):.3f}]",
-                        "ECE": m.get("ece", ""),
+                        "views, entropy": _num(v.get("sampled"), 2),
+                        "views, random": _num(v.get("random"), 2),
+                        "difference [95% CI]": f"{_num(d.get('mean'), 3)} "
+                        f"[{_num(d.get('lo'), 3)}, {_num(d.get('hi'), 3)}]",
+                        "ECE": _num(m.get("ece"), 3),
                     }
                 )
+                flat: dict[str, Any] = {"target": target, "experiment": name, "method": method}
+                for key, val in m.items():
+                    if isinstance(val, dict):
+                        for k2, v2 in val.items():
+                            if isinstance(v2, dict):
+                                flat.update({f"{key}.{k2}.{k3}": v3 for k3, v3 in v2.items()})
+                            else:
+                                flat[f"{key}.{k2}"] = v2
+                    else:
+                        flat[key] = val
+                full.append(flat)
+                if name == "paper":
+                    pc = m.get("p_correct_by_step", {})
+                    steps = sorted(pc.get("sampled", {}), key=int)
+                    if steps:
+                        steps_rows.append(
+                            {
+                                "target": target,
+                                "method": method,
+                                **{
+                                    f"{s} view{'s' * (s != '1')}": f"{_num(pc['sampled'].get(s), 3)}"
+                                    f" / {_num(pc.get('random', {}).get(s), 3)}"
+                                    for s in steps
+                                },
+                            }
+                        )
     settings = summ.get("settings", {})
+    link = _write_csv(out / "report-experiment.csv", full) if full else "(no rows)"
     text = (
-        "## Sequential recognition experiment\n\n"
-        f"Detector `{summ.get('detector', '')}`; views until p(true class) > {settings.get('confidence_threshold', 0.95)} "
-        "for the entropy planner and a random unseen view (paired trials; negative difference = entropy planning "
-        "needs fewer views), and the expected calibration error (ECE) of p(o | F). From `simulate-summary.json` "
-        f"(settings: {json.dumps(settings)}):\n\n"
+        f"## {title}\n\nDetector `{summ.get('detector', '')}`. Views until p(true class) > "
+        f"{settings.get('confidence_threshold', 0.95)} for the entropy planner and a random unseen view "
+        "(paired trials; a negative difference means entropy planning needs fewer views), and the "
+        "expected calibration error (ECE) of p(o | F), in the paper-sized experiment"
+        + (f" ({settings['trials']} trials)" if "trials" in settings else "")
+        + " and the large one"
+        + (f" ({settings['large_trials']} trials)" if "large_trials" in settings else "")
+        + f". From `simulate-summary.json`; every number by step in {link}.\n\n"
+        + _md_table(rows, list(rows[0]) if rows else [])
     )
-    return text + _md_table(rows) + "\n"
+    if steps_rows:
+        text += (
+            "\np(correct class) after n views, entropy planner / random view (paper experiment):\n\n"
+            + _md_table(steps_rows, list(steps_rows[0]))
+        )
+    if settings:
+        text += "\nSettings:\n\n" + _md_table(
+            [
+                {"setting": k, "value": ", ".join(map(str, v)) if isinstance(v, list) else str(v)}
+                for k, v in settings.items()
+            ],
+            ["setting", "value"],
+        )
+    extra = []
+    if "calibration_ece_pooled_over_targets" in summ:
+        pooled = summ["calibration_ece_pooled_over_targets"]
+        if isinstance(pooled, dict):
+            extra.append(
+                "ECE pooled over targets: "
+                + ", ".join(f"{k} {_num(v, 3)}" for k, v in pooled.items())
+            )
+        else:
+            extra.append(f"ECE pooled over targets: {_num(pooled, 3)}")
+    if "seconds_total" in summ:
+        extra.append(f"wall time {_num(summ['seconds_total'], 1)} s")
+    if extra:
+        text += "\n" + "; ".join(extra) + ".\n"
+    return text
 
 
-def _figures(out: Path) -> str:
+def _caption(name: str) -> str:
+    return next((cap for prefix, cap in OTHER_CAPTIONS if name.startswith(prefix)), "")
+
+
+def _section_figures(out: Path) -> str:
     figdir = out / "figures"
-    if not figdir.exists():
-        return ""
-    pngs = sorted(figdir.glob("*.png"))
-    used: set[Path] = set()
+    pngs = sorted(figdir.glob("*.png")) if figdir.exists() else []
+    if not pngs:
+        return (
+            "## Figures\n\n_Not available: no figures under `figures/` (the stages did not run)._\n"
+        )
     parts = ["## Figures\n"]
-    for prefix, caption in FIGURE_CAPTIONS:
-        for p in pngs:
-            if p.name.startswith(prefix) and p not in used:
-                used.add(p)
-                parts.append(f"**{p.stem}** — {caption}\n\n![{p.stem}](figures/{p.name})\n")
-    for p in pngs:
-        if p not in used:
-            parts.append(f"**{p.stem}**\n\n![{p.stem}](figures/{p.name})\n")
-    return "\n".join(parts) + "\n"
+    used: set[Path] = set()
+    for prefix, heading, sentence in FIGURE_GROUPS:
+        group = [p for p in pngs if p.name.startswith(prefix)]
+        used.update(group)
+        parts.append(f"### {heading}\n\n{sentence}\n")
+        if not group:
+            parts.append(f"_No `{prefix}*.png` under `figures/`._\n")
+        parts += [f"**{p.stem}**\n\n![{p.stem}](figures/{p.name})\n" for p in group]
+    rest = [p for p in pngs if p not in used]
+    rest.sort(
+        key=lambda p: (
+            next(
+                (i for i, (pre, _) in enumerate(OTHER_CAPTIONS) if p.name.startswith(pre)),
+                len(OTHER_CAPTIONS),
+            ),
+            p.name,
+        )
+    )
+    if rest:
+        parts.append(
+            "### Other figures\n\nThe dataset, the raw responses, the fits and calibration.\n"
+        )
+        for p in rest:
+            cap = _caption(p.name)
+            parts.append(
+                f"**{p.stem}**"
+                + (f" — {cap}" if cap else "")
+                + f"\n\n![{p.stem}](figures/{p.name})\n"
+            )
+    return "\n".join(parts)
+
+
+def _section_dataset(dataset_root: Path | None, seed: int) -> str:
+    if dataset_root is None:
+        return ""
+    from scrppl.datasets import dataset_layout, open_dataset
+
+    layout = dataset_layout(dataset_root)
+    if layout not in ("synthetic", "index", "savarese"):
+        return f"## Dataset\n\n_Not available: no dataset found at `{dataset_root}`._\n"
+    try:  # names only: the dataset stage has checked every file
+        summary = open_dataset(
+            dataset_root, split_seed=seed, validate=False, progress=False
+        ).summary()
+    except (FileNotFoundError, ValueError) as err:
+        return f"## Dataset\n\n_Not available: the dataset could not be loaded: {err}._\n"
+    keys = [
+        "name",
+        "n_categories",
+        "instances",
+        "images",
+        "missing_views",
+        "azimuths",
+        "elevations",
+        "scales",
+    ]
+    text = "## Dataset\n\n" + _md_table([{k: str(summary.get(k, "")) for k in keys}], keys)
+    if summary.get("split_counts"):
+        text += (
+            "\nInstances per split: "
+            + ", ".join(f"{k} {v}" for k, v in summary["split_counts"].items())
+            + ".\n"
+        )
+    return text
 
 
 def write_report(
     out: str | Path, *, dataset_root: Path | None = None, profile: str = "full", seed: int = 0
 ) -> Path:
-    """Write ``<out>/report.md`` from the outputs of the stages; return its path."""
-    out = Path(out)
-    parts = [
-        "# scrppl: reproduction report\n",
-        "Active, sequential object-category recognition with viewpoint detection models, after Meger, "
-        "Gupta & Little (ICRA 2010). Generated by `scrppl reproduce "
-        f"--profile {profile} --seed {seed}`; every number below is read from the files beside this report.\n",
-    ]
-    from scrppl.datasets import dataset_layout, open_dataset
+    """Write ``<out>/report.md`` and its ``report-*.csv`` tables from the stages' outputs.
 
-    layout = dataset_layout(dataset_root) if dataset_root is not None else None
-    if layout in ("synthetic", "index", "savarese"):
-        try:  # names only: the dataset stage has checked every file
-            summary = open_dataset(
-                dataset_root, split_seed=seed, validate=False, progress=False
-            ).summary()
-        except (FileNotFoundError, ValueError) as err:
-            parts.append(f"## Dataset\n\nThe dataset could not be loaded: {err}\n")
-        else:
-            keys = [
-                "name",
-                "n_categories",
-                "instances",
-                "images",
-                "missing_views",
-                "azimuths",
-                "elevations",
-                "scales",
-            ]
-            parts.append("## Dataset\n\n" + _md_table([{k: summary[k] for k in keys}]))
-            parts.append(
-                "\nInstances per split: "
-                + ", ".join(f"{k} {v}" for k, v in summary["split_counts"].items())
-                + "\n"
-            )
-    parts.append(_section_json("Stage timings (seconds)", out / "timings.json"))
-    parts.append(_section_detectors(out / "detectors" / "quality.json"))
-    parts.append(_section_diagnostics(out / "models" / "diagnostics.json"))
-    parts.append(
-        _section_csv("Held-out comparison of viewpoint models", out / "models" / "heldout.csv")
+    Parameters
+    ----------
+    out
+        The output folder of ``scrppl reproduce``.
+    dataset_root
+        The dataset the run used (its summary heads the report); ``None`` leaves that section out.
+    profile, seed
+        As given to ``scrppl reproduce``; named in the report's first lines.
+
+    Returns
+    -------
+    The path of ``report.md``. A stage that did not run leaves its section saying so.
+    """
+    out = Path(out)
+    for stale in out.glob("report-*.csv"):  # a table whose input is gone must not linger
+        stale.unlink()
+    sections = [
+        _section_dataset(dataset_root, seed),
+        _section_timings(out),
+        _section_detectors(out),
+        _section_diagnostics(out),
+        _section_heldout(out),
+        _section_experiment(out),
+        _section_figures(out),
+    ]
+    csvs = sorted(out.glob("report-*.csv"))
+    head = (
+        "# scrppl: reproduction report\n\n"
+        "Active, sequential object-category recognition with viewpoint detection models, after Meger, "
+        f"Gupta & Little (ICRA 2010). Generated by `scrppl reproduce --profile {profile} --seed {seed}`; "
+        "every number below is read from the files beside this report and rounded to what it can carry "
+        "(decimals: " + ", ".join(f"{k} {v}" for k, v in ROUNDING.items()) + ")."
     )
-    parts.append(_section_experiment(out / "simulate-summary.json"))
-    parts.append(_figures(out))
+    if csvs:
+        head += (
+            " Full-precision tables: " + ", ".join(f"[`{p.name}`]({p.name})" for p in csvs) + "."
+        )
     path = out / "report.md"
     with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(p for p in parts if p))
+        tmp.write_text("\n".join([head + "\n", *(s for s in sections if s)]))
     return path

@@ -7,7 +7,8 @@ import pytest
 
 from scrppl._io import atomic_path, default_cache_dir
 from scrppl.cli import build_parser, main
-from scrppl.cli.reproduce import Stage, is_current, stages
+from scrppl.cli.reproduce import stages
+from scrppl.pipeline import Stage, is_current
 from scrppl.report import write_report
 
 
@@ -63,30 +64,64 @@ def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
             assert "--seed" in argv and "3" in argv
 
 
-def test_report_lists_numbers_and_figures(tmp_path):
-    (tmp_path / "figures").mkdir()
-    (tmp_path / "figures" / "fig5-car.png").write_bytes(b"\x89PNG")
-    (tmp_path / "figures" / "other.png").write_bytes(b"\x89PNG")
+def _fake_run(out):
+    """A run folder as the stages write it, with full-precision numbers."""
+    (out / "figures").mkdir(parents=True)
+    for name in (
+        "other",
+        "calibration",
+        "fig5-car-gaussian",
+        "fig3-sift-car",
+        "fig1-car",
+        "fig2-dpm-car",
+        "fig4-car",
+        "dataset-sheet",
+    ):
+        (out / "figures" / f"{name}.png").write_bytes(b"\x89PNG")
+    (out / "timings.json").write_text(json.dumps({"detect": 70.123456, "fit": 45.55}))
+    (out / "detectors").mkdir()
+    quality = {
+        "average_precision": {
+            "dpm": {"car": 0.98691234, "shoe": 0.9398},
+            "sift": {"car": 0.5, "shoe": 0.25524},
+        },
+        "mean_average_precision": {"dpm": 0.96335617, "sift": 0.37762},
+        "azimuth_dependence": {
+            "dpm": {
+                "car": {"positive": 1.17551, "negative": None},
+                "shoe": {"positive": 1.1, "negative": 0.6},
+            }
+        },
+        "seconds": {"scoring": 10.04},
+        "split": "test",
+    }
+    (out / "detectors" / "quality.json").write_text(json.dumps(quality))
+    (out / "models").mkdir()
     method = {
         "views_to_confidence": {"sampled": 2.5, "random": 3.25},
         "views_to_confidence_difference_95ci": {"mean": -0.75, "lo": -1.0, "hi": -0.5},
-        "ece": 0.04,
+        "ece": 0.0412345,
+        "p_correct_by_step": {
+            "sampled": {"1": 0.9751234, "2": 1.0},
+            "random": {"1": 0.97512, "2": 0.98},
+        },
     }
     summary = {
         "detector": "dpm",
+        "settings": {"trials": 160, "planners": ["sampled", "random"]},
         "targets": {"car": {"paper_experiment": {"gaussian+naive_bayes": method}}},
+        "seconds_total": 42.4567,
     }
-    (tmp_path / "simulate-summary.json").write_text(json.dumps(summary))
-    (tmp_path / "models").mkdir()
+    (out / "simulate-summary.json").write_text(json.dumps(summary))
     diag = {
         "thresholds": {"rhat_max": 1.01},
         "dpm/car": {
             "ok": False,
-            "rhat_max": {"a": 1.02},
-            "ess_bulk_min": {"a": 300.0},
-            "ess_tail_min": {"a": 250.0},
+            "rhat_max": {"a": 1.0212345678, "b": 1.0011},
+            "ess_bulk_min": {"a": 300.456789, "b": 1000.2},
+            "ess_tail_min": {"a": 250.2, "b": 900.9},
             "divergences": 2,
-            "ebfmi": [0.8],
+            "ebfmi": [0.812345],
             "failures": ["R-hat > 1.01: a (1.020)"],
             "attempts": [
                 {"target_accept_prob": 0.9, "ok": False, "divergences": 3},
@@ -94,19 +129,172 @@ def test_report_lists_numbers_and_figures(tmp_path):
             ],
         },
     }
-    (tmp_path / "models" / "diagnostics.json").write_text(json.dumps(diag))
-    path = write_report(tmp_path, profile="quick", seed=1)
-    text = path.read_text()
+    (out / "models" / "diagnostics.json").write_text(json.dumps(diag))
+    cols = [
+        "lpd_single",
+        "lpd_single_se",
+        "lpd_joint",
+        "lpd_joint_se",
+        "cover50",
+        "cover50_se",
+        "cover90",
+        "cover90_se",
+    ]
+    lines = [",".join(["detector", "target", "kind", "class", "n_instances", "n_responses", *cols])]
+    i = 0
+    for det in ("dpm", "sift"):
+        for target in ("car", "shoe"):
+            for kind in ("gaussian", "hierarchical"):
+                for cls in ("all", "absent", "present"):
+                    i += 1
+                    vals = [
+                        repr(-1.0 - i / 7.0),
+                        repr(i / 97.0),
+                        repr(-0.5 - i / 11.0),
+                        repr(i / 89.0),
+                        repr(0.5 + i / 301.0),
+                        repr(i / 997.0),
+                        repr(0.9 - i / 503.0),
+                        repr(i / 991.0),
+                    ]
+                    lines.append(",".join([det, target, kind, cls, "18", "144", *vals]))
+    (out / "models" / "heldout.csv").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def _tables(text):
+    """Each Markdown table of ``text`` as a list of rows of cells, keyed by the line before it."""
+    tables, current, caption = {}, None, ""
+    for line in text.splitlines():
+        if line.startswith("|"):
+            if current is None:
+                current = tables.setdefault(caption, [])
+            if not line.startswith("|---"):
+                current.append([c.strip() for c in line.strip("|").split("|")])
+        else:
+            current = None
+            if line.strip():
+                caption = line.strip()
+    return tables
+
+
+def test_report_rounds_every_number_in_its_tables(tmp_path):
+    import re
+
+    text = write_report(_fake_run(tmp_path), profile="quick", seed=1).read_text()
+    table_lines = [line for line in text.splitlines() if line.startswith("| ")]
+    assert table_lines
+    for line in table_lines:
+        for decimals in re.findall(r"\d\.(\d+)", line):
+            assert len(decimals) <= 3, line
+    assert "| dpm | 0.99 | 0.94 | 0.96 |" in text  # average precision: 2 decimals
+    assert "| dpm | 1.18 / n/a | 1.10 / 0.60 |" in text  # not estimable stays n/a
+    assert "| detect | 70.1 |" in text and "| **total** | 115.7 |" in text  # seconds: 1 decimal
     assert (
-        "| car | paper | gaussian+naive_bayes | 2.5 | 3.25 | -0.750 [-1.000, -0.500] | 0.04 |"
+        "| dpm/car | NO | 1.021 | 300 | 250 | 2 | 0.81 | 0.9 -> 0.99 |" in text
+    )  # R-hat 3, ESS whole
+    assert (
+        "| car | paper | gaussian+naive_bayes | 2.50 | 3.25 | -0.750 [-1.000, -0.500] | 0.041 |"
         in text
     )
+    assert "| car | gaussian+naive_bayes | 0.975 / 0.975 | 1.000 / 0.980 |" in text
+    assert "--profile quick --seed 1" in text and "0 of 1 fits pass" in text
+    assert "```json" not in text  # no JSON dumps
+
+
+def test_report_heldout_is_one_row_per_detector_and_target(tmp_path):
+    text = write_report(_fake_run(tmp_path)).read_text()
+    tables = _tables(text)
+    header, *rows = tables["Per detector and target:"]
+    assert header[:2] == ["detector", "target"]
+    assert "single, Gaussian" in header and "joint, hierarchical" in header
+    assert sorted((r[0], r[1]) for r in rows) == [
+        ("dpm", "car"),
+        ("dpm", "shoe"),
+        ("sift", "car"),
+        ("sift", "shoe"),
+    ]
+    first = dict(zip(header, rows[0], strict=True))
+    # dpm/car/gaussian/all is row 1 of the CSV, hierarchical/all row 4
+    assert first["single, Gaussian"] == f"{-1 - 1 / 7:.3f} ± {1 / 97:.3f}"
+    assert first["joint, hierarchical"] == f"{-0.5 - 4 / 11:.3f} ± {4 / 89:.3f}"
+    header, *means = tables["Mean over targets, per detector:"]
+    assert [r[0] for r in means] == ["dpm", "sift"]
+    dpm = dict(zip(header, means[0], strict=True))
+    assert dpm["single, Gaussian"] == f"{(-1 - 1 / 7 - 1 - 7 / 7) / 2:.3f}"  # car row 1, shoe row 7
+
+
+def test_report_writes_full_tables_as_csv_and_links_them(tmp_path):
+    import csv
+
+    out = _fake_run(tmp_path)
+    text = write_report(out).read_text()
+    for name in ("report-heldout.csv", "report-diagnostics.csv", "report-experiment.csv"):
+        assert (out / name).exists() and f"]({name})" in text
+    with (out / "models" / "heldout.csv").open() as fh:
+        source = list(csv.DictReader(fh))
+    with (out / "report-heldout.csv").open() as fh:
+        wide = list(csv.DictReader(fh))
     assert (
-        "0 of 1 fits pass" in text
-        and "| dpm/car | NO | 1.02 | 300 | 250 | 2 | 0.8 | 0.9 -> 0.99 |" in text
+        len(wide) == len(source) // 2
+    )  # one row per (detector, target, class), kinds side by side
+    for r in source:
+        w = next(
+            w
+            for w in wide
+            if (w["detector"], w["target"], w["class"]) == (r["detector"], r["target"], r["class"])
+        )
+        for col in ("lpd_single", "lpd_joint_se", "cover90"):
+            assert float(w[f"{r['kind']}_{col}"]) == float(r[col])  # full precision round-trips
+    with (out / "report-diagnostics.csv").open() as fh:
+        diag = list(csv.DictReader(fh))
+    assert [(d["fit"], d["parameter"], float(d["rhat_max"])) for d in diag] == [
+        ("dpm/car", "a", 1.0212345678),
+        ("dpm/car", "b", 1.0011),
+    ]
+    with (out / "report-experiment.csv").open() as fh:
+        (exp,) = list(csv.DictReader(fh))
+    assert float(exp["ece"]) == 0.0412345 and float(exp["p_correct_by_step.sampled.1"]) == 0.9751234
+
+
+def test_report_groups_figures_in_paper_order(tmp_path):
+    text = write_report(_fake_run(tmp_path)).read_text()
+    headings = [line for line in text.splitlines() if line.startswith("### ")]
+    assert [h.split(":")[0] for h in headings] == [
+        "### Fig. 1",
+        "### Fig. 2",
+        "### Fig. 3",
+        "### Fig. 4",
+        "### Fig. 5",
+        "### Other figures",
+    ]
+    pos = {h.split(":")[0]: text.index(h) for h in headings}
+    assert pos["### Fig. 3"] < text.index("figures/fig3-sift-car.png") < pos["### Fig. 4"]
+    assert (
+        pos["### Fig. 5"] < text.index("figures/fig5-car-gaussian.png") < pos["### Other figures"]
     )
-    assert text.index("fig5-car") < text.index("other")  # paper figures first
-    assert "--profile quick --seed 1" in text
+    assert (
+        text.index("figures/dataset-sheet.png")
+        < text.index("figures/calibration.png")
+        < text.index("figures/other.png")
+    )
+    assert "**calibration** — Reliability" in text
+
+
+def test_report_says_which_stages_did_not_run(tmp_path):
+    (tmp_path / "report-heldout.csv").write_text("stale\n")
+    text = write_report(tmp_path).read_text()
+    for rel, stage in (
+        ("detectors/quality.json", "detect"),
+        ("models/diagnostics.json", "fit"),
+        ("models/heldout.csv", "fit"),
+        ("simulate-summary.json", "simulate"),
+    ):
+        assert f"`{rel}` was not written (the `{stage}` stage did not run)" in text
+    assert "no figures under `figures/`" in text
+    assert not list(tmp_path.glob("report-*.csv"))  # a table whose input is gone does not linger
+    (tmp_path / "simulate-summary.json").write_text("{not json")
+    assert "`simulate-summary.json` could not be read" in write_report(tmp_path).read_text()
 
 
 def test_every_subcommand_has_help(capsys):
