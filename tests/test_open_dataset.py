@@ -9,9 +9,10 @@ from test_cli_dataset import make_fixture_dataset
 from test_savarese import view_box, write_tree
 
 from scrppl.cli import main
-from scrppl.cli.reproduce import stages, uses_existing_dataset
+from scrppl.cli.reproduce import stages
 from scrppl.datasets import MultiviewDataset, dataset_layout, open_dataset
 from scrppl.datasets.core import assign_splits, write_ascii_mask
+from scrppl.pipeline import uses_existing_dataset
 from scrppl.views import SAVARESE_GRID
 
 

@@ -7,6 +7,8 @@
   latter every image and mask is checked, and ``--seed`` is the seed of its instance split.
 * ``sheet`` draws ``<out>/figures/dataset-sheet.png`` (one instance per category from every azimuth)
   and ``<out>/figures/view-sphere.png`` (all views of one instance around its view sphere).
+
+The summaries are :func:`scrppl.datasets.describe` and :func:`scrppl.datasets.format_summary`.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 
 from scrppl.cli._common import add_common, dataset_root, open_dataset_of
 
-__all__ = ["register", "describe", "format_summary", "DATASET_PROFILES"]
+__all__ = ["register", "DATASET_PROFILES"]
 
 #: Profiles of the synthetic dataset; ``tiny`` is the few-second configuration the tests use.
 DATASET_PROFILES = ("quick", "book", "full", "tiny")
@@ -112,67 +114,12 @@ def _no_subcommand(parser: argparse.ArgumentParser):
     return handler
 
 
-def describe(dataset) -> dict:
-    """:meth:`MultiviewDataset.summary` plus ``per_category``: instances, images and missing views of each.
-
-    The per-category counts show at a glance which categories lack views (e.g. a Savarese category
-    photographed from two heights only).
-    """
-    summary = dataset.summary()
-    per_category = {}
-    for c, g in dataset.index.groupby("category", sort=True):
-        n_inst = int(g["instance"].nunique())
-        per_category[str(c)] = {
-            "instances": n_inst,
-            "images": int(len(g)),
-            "missing_views": int(n_inst * dataset.grid.n_views - len(g)),
-        }
-    summary["per_category"] = per_category
-    return summary
-
-
-def format_summary(summary: dict) -> str:
-    """Readable text for :func:`describe` (or :meth:`MultiviewDataset.summary`) output."""
-    grid = summary["grid"]
-    els = ", ".join(f"{e:g}" for e in grid["elevations"])
-    scs = ", ".join(f"{s:g}" for s in grid["scales"])
-    counts = summary["split_counts"]
-    per_category = summary.get("per_category", {})
-    lines = [
-        f"{summary['name']} dataset at {summary['root']}",
-        f"  {summary['n_categories']} categories, {summary['instances']} instances, "
-        f"{summary['images']} images ({summary['missing_views']} missing views)",
-        f"  grid: {summary['azimuths']} azimuths x {summary['elevations']} elevations ({els} deg) "
-        f"x {summary['scales']} scales ({scs})",
-        "  instances per split: " + ", ".join(f"{s} {n}" for s, n in counts.items()),
-        "",
-        f"  {'category':<12} {'images':>7} {'missing':>8}   instance ids: "
-        + " ".join(f"{s:<10}" for s in counts),
-    ]
-    for c in summary["categories"]:
-        n = per_category.get(c, {})
-        ids = [",".join(str(i) for i in summary["splits"][s].get(c, [])) or "-" for s in counts]
-        lines.append(
-            f"  {c:<12} {n.get('images', '?'):>7} {n.get('missing_views', '?'):>8}   "
-            + " " * len("instance ids: ")
-            + " ".join(f"{x:<10}" for x in ids)
-        )
-    return "\n".join(line.rstrip() for line in lines)
-
-
 def _make(args: argparse.Namespace) -> int:
-    from scrppl.datasets import dataset_layout
+    from scrppl.datasets import check_generation_root, describe, format_summary
     from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic
 
     root = dataset_root(args)
-    layout = dataset_layout(root)
-    if layout in ("savarese", "index"):
-        what = "a copy of the Savarese dataset" if layout == "savarese" else "a saved dataset index"
-        raise ValueError(
-            f"{root} holds {what}, not a synthetic dataset: `scrppl dataset make` only generates the "
-            f"synthetic dataset. Use that dataset as it is (`scrppl dataset info --root {root}`, "
-            f"`scrppl reproduce --root {root}`), or choose another --root to generate into"
-        )
+    check_generation_root(root)
     config = SyntheticConfig.for_profile(args.profile)
     dataset = make_synthetic(
         root, config, args.seed, workers=args.workers, progress=not args.no_progress
@@ -182,6 +129,8 @@ def _make(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
+    from scrppl.datasets import describe, format_summary
+
     dataset = open_dataset_of(args, validate=not args.no_validate, progress=not args.no_progress)
     summary = describe(dataset)
     if args.json:

@@ -17,7 +17,6 @@ Writes ``trials.nc`` (the paper-sized experiment), ``trials-large.nc``, ``figure
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from scrppl.cli._common import add_common
@@ -48,7 +47,8 @@ PROFILE_SETTINGS = {
         "large_max_draws": 8,
     },
 }
-#: Targets simulated when ``--targets`` is not given (the first ones of the table).
+#: Targets simulated when ``--targets`` is not given: :data:`scrppl.sim.study.DEFAULT_N_TARGETS`,
+#: repeated here so that building the parser does not import JAX.
 DEFAULT_N_TARGETS = 3
 
 
@@ -116,16 +116,9 @@ def _run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from scrppl._io import atomic_path
-    from scrppl.plotting.belief import (
-        plot_calibration,
-        plot_planner_comparison,
-        plot_posterior_evolution,
-    )
+    from scrppl.plotting.belief import save_study_figures
     from scrppl.responses import load_response_table
-    from scrppl.sim import run_study, save_trials
+    from scrppl.sim.study import choose_detector, choose_targets, run_study, save_study
 
     out = Path(args.out)
     table = load_response_table(out / "responses.nc")
@@ -133,22 +126,14 @@ def _run(args: argparse.Namespace) -> int:
     for opt in settings:
         if getattr(args, opt) is not None:
             settings[opt] = int(getattr(args, opt))
-    detectors = table["detector"].values.tolist()
-    detector = args.detector or next(
-        (d for d in detectors if d.lower().startswith("dpm")), detectors[0]
-    )
-    if detector not in detectors:
-        raise ValueError(f"detector {detector!r} is not in the response table ({detectors})")
-    all_targets = table["target"].values.tolist()
-    if args.targets in (None, ""):
-        targets = all_targets[:DEFAULT_N_TARGETS]
-    elif args.targets == "all":
-        targets = all_targets
+    detector = choose_detector(table["detector"].values.tolist(), args.detector)
+    if args.targets in (None, "", "all"):
+        requested = args.targets or None
     else:
-        targets = [t.strip() for t in args.targets.split(",") if t.strip()]
-    for t in targets:
-        if t not in all_targets:
-            raise ValueError(f"target {t!r} is not in the response table ({all_targets})")
+        requested = [t.strip() for t in args.targets.split(",") if t.strip()]
+    targets = choose_targets(
+        table["target"].values.tolist(), requested, n_default=DEFAULT_N_TARGETS
+    )
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     study = run_study(
         args.seed,
@@ -164,27 +149,7 @@ def _run(args: argparse.Namespace) -> int:
         **settings,
     )
     fig_dir = out / "figures"
-    fig_dir.mkdir(parents=True, exist_ok=True)
-    figures = []
-    for target in targets:
-        for name in study.summaries[target]["filter"].values.tolist():
-            title = f"{detector} / {target} / {name}: {settings['trials']} trials"
-            fig = plot_planner_comparison(study.summaries[target], name, title=title)
-            figures.append((fig, f"fig5-{target}-{name.replace('+', '-')}.png"))
-        if study.examples[target] is not None:
-            beliefs, pose, robots = study.examples[target]
-            fig = plot_posterior_evolution(beliefs, pose, robots, label=target)
-            figures.append((fig, f"fig4-{target}.png"))
-    title = f"{detector}: calibration over {len(targets)} targets"
-    figures.append((plot_calibration(study.calibration, title=title), "calibration.png"))
-    for fig, name in figures:
-        fig.savefig(fig_dir / name, dpi=120)
-        plt.close(fig)
-    save_trials(study.trials, out / "trials.nc")
-    if study.large is not None:
-        save_trials(study.large, out / "trials-large.nc")
-    path = out / "simulate-summary.json"
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(study.summary, indent=2))
-    log(f"[simulate] wrote {out / 'trials.nc'}, {path} and figures in {fig_dir}")
+    save_study_figures(study, fig_dir)
+    written = save_study(study, out)
+    log(f"[simulate] wrote {out / 'trials.nc'}, {written[-1]} and figures in {fig_dir}")
     return 0

@@ -1,7 +1,8 @@
 """Multiview object-category datasets: the index, the Savarese loader and the synthetic dataset.
 
 The index is `MultiviewDataset`; `open_dataset(root)` opens the dataset in a folder, whether it is a
-saved index (the synthetic cache) or a copy of the Savarese dataset (`dataset_layout` tells which).
+saved index (the synthetic cache) or a copy of the Savarese dataset (`dataset_layout` tells which);
+`describe` and `format_summary` summarise it (`scrppl dataset info`).
 
 The loaders and generators are imported lazily by their submodules (``scrppl.datasets.savarese``,
 ``scrppl.datasets.synthetic``) because they pull in OpenCV and the renderer.
@@ -18,6 +19,7 @@ from scrppl.datasets.core import (
     write_ascii_mask,
 )
 from scrppl.datasets.folders import dataset_layout, open_dataset
+from scrppl.datasets.summary import check_generation_root, describe, format_summary
 
 __all__ = [
     "DEFAULT_SPLIT_PROPORTIONS",
@@ -26,6 +28,9 @@ __all__ = [
     "MultiviewDataset",
     "assign_splits",
     "bbox_from_mask",
+    "check_generation_root",
+    "describe",
+    "format_summary",
     "dataset_layout",
     "open_dataset",
     "read_ascii_mask",

@@ -8,7 +8,9 @@
   distance transforms, latent SVM) and the root-only :class:`HogTemplate`;
 * :mod:`scrppl.detectors.train` -- :func:`train_detectors` (every family x target, saved to disk);
 * :mod:`scrppl.detectors.scoring` -- :func:`score_dataset`, the response table (resumable);
-* :mod:`scrppl.detectors.evaluation` -- average precision and azimuth dependence.
+* :mod:`scrppl.detectors.evaluation` -- average precision and azimuth dependence;
+* :mod:`scrppl.detectors.study` -- :func:`~scrppl.detectors.study.run_detection`, all of the above as
+  ``scrppl detect`` runs it, and the data of the paper's Fig. 1.
 
 :func:`load_detector` reloads any saved detector, dispatching on its family.
 """

@@ -5,6 +5,7 @@
   effects; :mod:`~scrppl.models.fit` runs NUTS (:mod:`~scrppl.models.mcmc`) and checks the
   diagnostics (:mod:`~scrppl.models.diagnostics`);
 * :mod:`~scrppl.models.predictive` -- a posterior as a :class:`ResponseModel`;
+* :mod:`~scrppl.models.study` -- every detector x target fitted, checked and scored (``scrppl fit``);
 * :mod:`~scrppl.models.evaluate` -- held-out log predictive density and calibration;
 * :mod:`~scrppl.models.simulate` -- response tables from known parameters;
 * :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
@@ -55,6 +56,8 @@ __all__ = [
     "diagnose",
     "DiagnosticsWarning",
     "instance_log_marginal",
+    "fit_study",
+    "FitStudy",
 ]
 
 _LAZY = {
@@ -79,6 +82,8 @@ _LAZY = {
     "diagnose": "diagnostics",
     "DiagnosticsWarning": "diagnostics",
     "instance_log_marginal": "marginal",
+    "fit_study": "study",
+    "FitStudy": "study",
 }
 
 

@@ -21,6 +21,7 @@ __all__ = [
     "plot_expected_entropies",
     "plot_sampling_error",
     "plot_step_comparison",
+    "save_study_figures",
 ]
 
 _PLANNER_COLOURS = {"sampled": "C0", "quadrature": "C2", "plug_in": "C4", "random": "C3"}
@@ -473,3 +474,48 @@ def plot_step_comparison(
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def save_study_figures(study, fig_dir) -> list:
+    """The figures of ``scrppl simulate`` from its :class:`scrppl.sim.study.Study`.
+
+    Writes, for every target, ``fig5-<target>-<method>.png`` (:func:`plot_planner_comparison` of each
+    method) and ``fig4-<target>.png`` (:func:`plot_posterior_evolution` of the example trial), then
+    ``calibration.png`` (:func:`plot_calibration`, pooled over the targets).
+
+    Parameters
+    ----------
+    study
+        What :func:`scrppl.sim.run_study` returned.
+    fig_dir
+        Output folder (created).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from pathlib import Path
+
+    fig_dir = Path(fig_dir)
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    detector = study.summary["detector"]
+    n_trials = study.summary["settings"]["trials"]
+    figures = []
+    for target, summary in study.summaries.items():
+        for name in summary["filter"].values.tolist():
+            title = f"{detector} / {target} / {name}: {n_trials} trials"
+            fig = plot_planner_comparison(summary, name, title=title)
+            figures.append((fig, f"fig5-{target}-{name.replace('+', '-')}.png"))
+        if study.examples[target] is not None:
+            beliefs, pose, robots = study.examples[target]
+            fig = plot_posterior_evolution(beliefs, pose, robots, label=target)
+            figures.append((fig, f"fig4-{target}.png"))
+    title = f"{detector}: calibration over {len(study.summaries)} targets"
+    figures.append((plot_calibration(study.calibration, title=title), "calibration.png"))
+    written = []
+    for fig, name in figures:
+        fig.savefig(fig_dir / name, dpi=120)
+        plt.close(fig)
+        written.append(fig_dir / name)
+    return written

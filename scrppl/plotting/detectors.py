@@ -15,7 +15,11 @@ import xarray as xr
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-__all__ = ["plot_response_over_azimuth", "plot_mean_response_by_azimuth"]
+__all__ = [
+    "plot_response_over_azimuth",
+    "plot_mean_response_by_azimuth",
+    "save_detection_figures",
+]
 
 
 def plot_response_over_azimuth(
@@ -179,3 +183,66 @@ def plot_mean_response_by_azimuth(
     which = f" ({', '.join(splits)} split{'s' if len(splits) > 1 else ''})" if splits else ""
     fig.suptitle(f"{detector}: mean response by azimuth{which}")
     return fig
+
+
+def save_detection_figures(dataset, detectors, table: xr.Dataset, folder) -> list:
+    """The figures of ``scrppl detect``: Fig. 1 per target and the mean response by azimuth per family.
+
+    Writes ``fig1-<target>.png`` (:func:`plot_response_over_azimuth` of
+    :func:`scrppl.detectors.study.fig1_example`, for the family of
+    :func:`~scrppl.detectors.study.fig1_family`) and ``responses-<family>.png``
+    (:func:`plot_mean_response_by_azimuth` on the held-out ``fit`` and ``test`` instances).
+
+    Parameters
+    ----------
+    dataset
+        The dataset the table was scored on.
+    detectors
+        ``{family: {target: Detector}}`` as trained by :func:`scrppl.detectors.train.train_detectors`.
+    table
+        The response table.
+    folder
+        Output folder (created).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from pathlib import Path
+
+    from scrppl._io import atomic_path
+    from scrppl.detectors.study import fig1_example, fig1_family
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    def save(fig, path):
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        written.append(path)
+
+    fam = fig1_family(detectors)
+    for target, det in detectors[fam].items():
+        ex = fig1_example(dataset, det, table, fam, target)
+        if ex is None:
+            continue
+        fig = plot_response_over_azimuth(
+            ex.images,
+            ex.responses,
+            ex.detections,
+            azimuth_degrees=dataset.grid.azimuth_degrees,
+            threshold=ex.threshold,
+            object_boxes=ex.boxes,
+            title=f"{fam} for {target!r}: test instance {ex.instance} (e={ex.elevation}, s={ex.scale})",
+            detector_name=fam,
+        )
+        save(fig, folder / f"fig1-{target}.png")
+    for family in detectors:
+        save(
+            plot_mean_response_by_azimuth(table, family, split=("fit", "test")),
+            folder / f"responses-{family}.png",
+        )
+    return written

@@ -36,6 +36,7 @@ __all__ = [
     "plot_predictive_densities",
     "plot_predictive_sample_check",
     "save_figure",
+    "save_fit_figures",
 ]
 
 
@@ -523,3 +524,52 @@ def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
         fig.savefig(path, dpi=dpi)
         plt.close("all")
     return path
+
+
+#: Parameters shown in the trace and forest plots of :func:`save_fit_figures`, when in the posterior.
+SUMMARY_PARAMETERS = ("alpha", "eta", "sigma_class", "instance_sd", "category_sd")
+
+
+def save_fit_figures(fits: Mapping, targets, fig_dir: str | Path) -> list[Path]:
+    """The figures of ``scrppl fit``: polar viewpoint functions, and trace and forest plots of one fit.
+
+    Writes ``fig3-<detector>-<target>.png`` for detectors on the Anscombe scale (SIFT, bag of words: the
+    paper's Fig. 3) and ``fig2-...`` for the others (the DPM: Fig. 2), for the pairs whose target is in
+    ``targets``; and ``trace-`` / ``forest-<detector>-<target>.png`` of the first pair of ``fits``.
+
+    Parameters
+    ----------
+    fits
+        ``{(detector, target): FittedPair}`` (:attr:`scrppl.models.study.FitStudy.fits`).
+    targets
+        Targets to draw (:func:`scrppl.models.study.figure_targets`).
+    fig_dir
+        Output folder.
+
+    Returns
+    -------
+    The paths written.
+    """
+    from scrppl.models import transforms
+
+    fig_dir = Path(fig_dir)
+    written = []
+    for (det, tgt), pair in fits.items():
+        if tgt not in targets:
+            continue
+        number = "fig3" if transforms.default_transform(det) == "anscombe" else "fig2"
+        scale = "" if pair.transform == "identity" else f" ({pair.transform} scale)"
+        fig = plot_viewpoint_functions(
+            [(f"{det} / {tgt}", pair.hierarchical, pair.gaussian)], radial_label=f"response{scale}"
+        )
+        written.append(save_figure(fig, fig_dir / f"{number}-{det}-{tgt}.png"))
+    if fits:
+        (det, tgt), pair = next(iter(fits.items()))
+        names = [n for n in SUMMARY_PARAMETERS if n in pair.posterior["posterior"].data_vars]
+        written.append(
+            save_figure(plot_fit_trace(pair.posterior, names), fig_dir / f"trace-{det}-{tgt}.png")
+        )
+        written.append(
+            save_figure(plot_fit_forest(pair.posterior, names), fig_dir / f"forest-{det}-{tgt}.png")
+        )
+    return written

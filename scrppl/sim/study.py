@@ -8,11 +8,14 @@ same functions and gets the same numbers for the same key.
 * :func:`example_trial` -- one positive trial, planned by expected entropy, for the paper's Fig. 4;
 * :func:`headline` -- the compact per-method numbers of ``simulate-summary.json``;
 * :func:`pooled_calibration` -- reliability and ECE pooled over several experiments;
-* :func:`run_study` -- the paper's experiment (and the large one) for several targets.
+* :func:`choose_detector`, :func:`choose_targets` -- which fits ``scrppl simulate`` runs by default;
+* :func:`run_study` -- the paper's experiment (and the large one) for several targets;
+* :func:`save_study` -- ``trials.nc``, ``trials-large.nc`` and ``simulate-summary.json``.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -22,8 +25,16 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
+from scrppl._io import atomic_path
 from scrppl.sim import metrics as M
-from scrppl.sim.experiment import Method, calibration, compare_planners, run_experiment, summarise
+from scrppl.sim.experiment import (
+    Method,
+    calibration,
+    compare_planners,
+    run_experiment,
+    save_trials,
+    summarise,
+)
 
 __all__ = [
     "DEFAULT_KINDS",
@@ -33,13 +44,62 @@ __all__ = [
     "headline",
     "pooled_calibration",
     "Study",
+    "DEFAULT_N_TARGETS",
+    "choose_detector",
+    "choose_targets",
     "run_study",
+    "save_study",
 ]
 
 #: Model kinds tried in order; each is loaded with :func:`scrppl.models.load_response_model`.
 DEFAULT_KINDS = ("gaussian", "hierarchical")
 #: The planners the study compares: entropy planning (eq. 5) and the paper's random unseen view.
 PLANNERS = ("sampled", "random")
+#: Targets simulated by default (the first ones of the table).
+DEFAULT_N_TARGETS = 3
+
+
+def choose_detector(available: Sequence[str], requested: str | None = None) -> str:
+    """The detector to simulate: ``requested``, else the DPM (the paper's), else the first.
+
+    Raises
+    ------
+    ValueError
+        If ``requested`` is not among ``available``.
+    """
+    available = list(available)
+    detector = requested or next(
+        (d for d in available if d.lower().startswith("dpm")), available[0]
+    )
+    if detector not in available:
+        raise ValueError(f"detector {detector!r} is not in the response table ({available})")
+    return detector
+
+
+def choose_targets(
+    available: Sequence[str],
+    requested: Sequence[str] | str | None = None,
+    *,
+    n_default: int = DEFAULT_N_TARGETS,
+) -> list[str]:
+    """The targets to simulate: the first ``n_default`` (``requested=None``), ``"all"``, or a list.
+
+    Raises
+    ------
+    ValueError
+        If a requested target is not among ``available``.
+    """
+    available = list(available)
+    if requested is None:
+        targets = available[:n_default]
+    elif isinstance(requested, str) and requested == "all":
+        targets = available
+    else:
+        targets = list(requested)
+    for t in targets:
+        if t not in available:
+            raise ValueError(f"target {t!r} is not in the response table ({available})")
+    return targets
 
 
 def load_methods(
@@ -377,3 +437,24 @@ def run_study(
     }
     summary["seconds_total"] = round(time.perf_counter() - t_start, 1)
     return Study(paper, large, summaries, examples, pooled, summary)
+
+
+def save_study(study: Study, out: str | Path) -> list[Path]:
+    """Write ``trials.nc``, ``trials-large.nc`` (when run) and ``simulate-summary.json`` under ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    out = Path(out)
+    written = [out / "trials.nc"]
+    save_trials(study.trials, written[0])
+    if study.large is not None:
+        written.append(out / "trials-large.nc")
+        save_trials(study.large, written[-1])
+    path = out / "simulate-summary.json"
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(study.summary, indent=2))
+    written.append(path)
+    return written

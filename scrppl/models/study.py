@@ -1,0 +1,301 @@
+"""Fit every detector x target and check the diagnostics: ``scrppl fit`` as library functions.
+
+The command line only parses arguments, calls :func:`fit_study`, prints and draws the figures
+(:func:`scrppl.plotting.models.save_fit_figures`); a notebook calls the same functions and gets the
+same files and numbers for the same key.
+
+* :func:`select_names` -- check requested detectors or targets against the response table;
+* :func:`figure_targets` -- the targets drawn in Figs. 2 and 3;
+* :func:`fit_pair` -- the paper's Gaussian and the hierarchical model of one detector x target, reusing
+  saved fits that are current;
+* :func:`fit_study` -- every pair, ``models/diagnostics.json`` and the held-out ``models/heldout.csv``;
+* :func:`failed_fits` -- the fits that fail their MCMC diagnostics.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import pandas as pd
+import xarray as xr
+from tqdm.auto import tqdm
+
+from scrppl._io import atomic_path
+from scrppl.models.data import extract_view_data
+from scrppl.models.diagnostics import THRESHOLDS
+from scrppl.models.evaluate import evaluate_models
+from scrppl.models.fit import MODEL_VERSION, fit_hierarchical
+from scrppl.models.gaussian import fit_gaussian
+from scrppl.models.io import (
+    load_posterior,
+    load_response_model,
+    model_path,
+    save_gaussian,
+    save_posterior,
+)
+from scrppl.models.mcmc import SamplerConfig
+from scrppl.models.predictive import to_response_model
+from scrppl.models.response import ResponseModel
+from scrppl.responses import load_response_table
+
+__all__ = [
+    "PAPER_TARGETS",
+    "select_names",
+    "figure_targets",
+    "FittedPair",
+    "FitStudy",
+    "fit_pair",
+    "fit_study",
+    "failed_fits",
+]
+
+#: Targets drawn in Figs. 2 and 3 when present (the paper's choice).
+PAPER_TARGETS = ("bicycle", "car", "monitor")
+
+
+def select_names(requested: Sequence[str] | None, available: Iterable[str], axis: str) -> list[str]:
+    """The detectors (or targets) to fit: all of ``available``, or ``requested`` after checking it.
+
+    Parameters
+    ----------
+    requested
+        Names asked for; ``None`` means all.
+    available
+        Names in the response table.
+    axis
+        ``"detector"`` or ``"target"``, for the error message.
+
+    Returns
+    -------
+    The names, in the order requested (or of the table).
+
+    Raises
+    ------
+    ValueError
+        If a requested name is not in the table.
+    """
+    available = list(available)
+    if requested is None:
+        return available
+    missing = [x for x in requested if x not in available]
+    if missing:
+        raise ValueError(f"{axis}s {missing} are not in the response table ({available})")
+    return list(requested)
+
+
+def figure_targets(targets: Sequence[str]) -> list[str]:
+    """Targets drawn in Figs. 2 and 3: those of :data:`PAPER_TARGETS` present, else the first three."""
+    chosen = [t for t in PAPER_TARGETS if t in targets]
+    return chosen or list(targets[:3])
+
+
+class FittedPair(NamedTuple):
+    """Both viewpoint models of one detector x target.
+
+    Attributes
+    ----------
+    gaussian
+        The paper's Gaussian as a :class:`~scrppl.models.response.ResponseModel`.
+    hierarchical
+        The hierarchical model's posterior predictive as a ``ResponseModel``.
+    posterior
+        The hierarchical fit (``DataTree`` of :func:`~scrppl.models.fit.fit_hierarchical`).
+    transform
+        The response transform both models work on (``"identity"``, ``"anscombe"``, ...).
+    """
+
+    gaussian: ResponseModel
+    hierarchical: ResponseModel
+    posterior: xr.DataTree
+    transform: str
+
+
+class FitStudy(NamedTuple):
+    """What :func:`fit_study` fitted and measured.
+
+    Attributes
+    ----------
+    detectors, targets
+        The detectors and targets fitted (:func:`select_names`).
+    fits
+        ``{(detector, target): FittedPair}`` in fitting order.
+    diagnostics
+        ``{"detector/target": report}`` as written to ``diagnostics.json`` (without ``thresholds``; it
+        keeps the reports of earlier runs for pairs not fitted now). Each report is
+        :func:`~scrppl.models.diagnostics.diagnose`'s with ``noncentered`` and ``attempts`` added.
+    heldout
+        Held-out scores of :func:`~scrppl.models.evaluate.evaluate_models` for every pair, or ``None``
+        when the table has no ``test`` instances.
+    failed
+        :func:`failed_fits` of the pairs fitted now.
+    """
+
+    detectors: list[str]
+    targets: list[str]
+    fits: dict[tuple[str, str], FittedPair]
+    diagnostics: dict[str, dict]
+    heldout: pd.DataFrame | None
+    failed: dict[str, list[str]]
+
+
+def _is_current(path: Path, stamp: float | None) -> bool:
+    return stamp is not None and path.exists() and path.stat().st_mtime >= stamp
+
+
+def fit_pair(
+    key: jax.Array,
+    table: xr.Dataset,
+    models_dir: str | Path,
+    detector: str,
+    target: str,
+    config: SamplerConfig,
+    *,
+    reuse_since: float | None = None,
+    progress: bool = True,
+) -> tuple[FittedPair, dict]:
+    """Fit (or load) the Gaussian and the hierarchical model of one detector x target.
+
+    Both are saved under ``models_dir`` (:func:`~scrppl.models.io.model_path`). A saved fit newer than
+    ``reuse_since`` is loaded instead -- the hierarchical one only if it was fitted by this
+    :data:`~scrppl.models.fit.MODEL_VERSION`.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the hierarchical fit.
+    table
+        The response table (:mod:`scrppl.responses`); its ``fit`` split is fitted.
+    models_dir
+        Folder of the saved models.
+    detector, target
+        Which pair.
+    config
+        NUTS settings.
+    reuse_since
+        Modification time (seconds since the epoch) a saved fit must not predate to be reused;
+        ``None`` refits always.
+    progress
+        Show the sampler's progress bar.
+
+    Returns
+    -------
+    pair
+        The fitted models.
+    report
+        The hierarchical fit's diagnostics, with its ``noncentered`` sites and retry ``attempts``.
+    """
+    models_dir = Path(models_dir)
+    data, meta = extract_view_data(table, detector, target, split="fit")
+    gpath = model_path(models_dir, "gaussian", detector, target)
+    hpath = model_path(models_dir, "hierarchical", detector, target)
+    if not _is_current(gpath, reuse_since):
+        g, n_obs = fit_gaussian(data)
+        save_gaussian(gpath, g, n_obs, meta)
+    tree = load_posterior(hpath) if _is_current(hpath, reuse_since) else None
+    if tree is not None and json.loads(tree.attrs["meta"]).get("model_version") != MODEL_VERSION:
+        tree = None  # fitted by another version of the model
+    if tree is None:
+        # diagnostics are reported by the caller (fit_study collects them), hence warn=False
+        tree = fit_hierarchical(key, data, meta, config, progress=progress, warn=False)
+        save_posterior(hpath, tree)
+    report = json.loads(tree.attrs["diagnostics"])
+    fit_meta = json.loads(tree.attrs["meta"])
+    report["noncentered"] = fit_meta.get("noncentered")
+    report["attempts"] = fit_meta.get("attempts", [])
+    gauss, _ = load_response_model(models_dir, "gaussian", detector, target)
+    pair = FittedPair(gauss, to_response_model(tree), tree, meta["transform"])
+    return pair, report
+
+
+def failed_fits(
+    diagnostics: Mapping[str, dict], detectors: Sequence[str], targets: Sequence[str]
+) -> dict[str, list[str]]:
+    """``{"detector/target": failures}`` of the listed pairs whose diagnostics are not ``ok``."""
+    return {
+        k: v["failures"]
+        for k, v in diagnostics.items()
+        if k.split("/")[0] in detectors and k.split("/")[1] in targets and not v["ok"]
+    }
+
+
+def fit_study(
+    key: jax.Array,
+    responses: str | Path,
+    models_dir: str | Path,
+    config: SamplerConfig,
+    *,
+    detectors: Sequence[str] | None = None,
+    targets: Sequence[str] | None = None,
+    force: bool = False,
+    progress: bool = True,
+) -> FitStudy:
+    """Fit both viewpoint models of every detector x target, check them and score them held out.
+
+    Pair ``j`` (detectors outer, targets inner) is fitted with ``jax.random.fold_in(key, j)``. Saved fits
+    newer than ``responses`` are reused unless ``force``. Writes under ``models_dir`` the models,
+    ``diagnostics.json`` (``thresholds`` and one report per pair, merged into an existing file) and,
+    when the table has ``test`` instances, ``heldout.csv``.
+
+    Parameters
+    ----------
+    key
+        PRNG key.
+    responses
+        Path of the response table (``responses.nc``).
+    models_dir
+        Output folder (``<out>/models``).
+    config
+        NUTS settings.
+    detectors, targets
+        Subsets to fit (default: all of the table); checked by :func:`select_names`.
+    force
+        Refit even current models.
+    progress
+        Show progress bars.
+
+    Returns
+    -------
+    :class:`FitStudy`
+    """
+    responses, models_dir = Path(responses), Path(models_dir)
+    table = load_response_table(responses)
+    detectors = select_names(detectors, [str(d) for d in table["detector"].values], "detector")
+    targets = select_names(targets, [str(t) for t in table["target"].values], "target")
+    stamp = None if force else responses.stat().st_mtime
+    has_test = (table["split"].values.astype(str) == "test").any()
+    diag_path = models_dir / "diagnostics.json"
+    diagnostics = json.loads(diag_path.read_text()) if diag_path.exists() else {}
+    diagnostics = {k: v for k, v in diagnostics.items() if k != "thresholds"}
+    heldout, fits = [], {}
+    jobs = [(d, t) for d in detectors for t in targets]
+    for job, (det, tgt) in enumerate(tqdm(jobs, desc="scrppl fit", disable=not progress)):
+        pair, report = fit_pair(
+            jax.random.fold_in(key, job),
+            table,
+            models_dir,
+            det,
+            tgt,
+            config,
+            reuse_since=stamp,
+            progress=progress,
+        )
+        diagnostics[f"{det}/{tgt}"] = report
+        fits[(det, tgt)] = pair
+        if has_test:
+            test, _ = extract_view_data(table, det, tgt, split="test")
+            models = {"gaussian": pair.gaussian, "hierarchical": pair.hierarchical}
+            heldout.append(evaluate_models(models, test, {"detector": det, "target": tgt}))
+    with atomic_path(diag_path) as tmp:
+        tmp.write_text(json.dumps({"thresholds": THRESHOLDS, **diagnostics}, indent=1))
+    frame = None
+    if heldout:
+        frame = pd.concat(heldout, ignore_index=True)
+        with atomic_path(models_dir / "heldout.csv") as tmp:
+            frame.to_csv(tmp, index=False)
+    return FitStudy(
+        detectors, targets, fits, diagnostics, frame, failed_fits(diagnostics, detectors, targets)
+    )

@@ -1,0 +1,208 @@
+"""The reproduction pipeline: its stages, what each reads and writes, and running them in order.
+
+``scrppl reproduce`` builds the stages with :func:`stages` and runs them with :func:`run_stages`;
+each stage is a list of ``scrppl`` command lines, so the runner takes the function that executes one
+(``scrppl.cli.main``) rather than importing the command line.
+
+* :class:`Stage` -- one step: command lines, inputs, outputs;
+* :func:`is_current` -- whether a stage's outputs are newer than its inputs (then it is skipped);
+* :func:`stages` -- dataset, detect, fit and simulate for one dataset folder, output folder, seed and profile;
+* :func:`uses_existing_dataset` -- whether the dataset folder is used as it is rather than generated;
+* :func:`run_stages` -- run the stages that are not current;
+* :func:`failed_fits` -- the hierarchical fits that failed their diagnostics (``diagnostics.json``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["Stage", "is_current", "stages", "uses_existing_dataset", "run_stages", "failed_fits"]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One step of the pipeline: the command lines it runs, what it reads and what it writes."""
+
+    name: str
+    module: str
+    argv: tuple[tuple[str, ...], ...]
+    inputs: tuple[Path, ...]
+    outputs: tuple[Path, ...]
+    #: whether the stage's command takes ``--force`` (detect needs none: it reuses only identical work)
+    takes_force: bool = False
+
+
+def is_current(stage: Stage) -> bool:
+    """Whether every output of ``stage`` exists and is at least as new as every existing input."""
+    if not stage.outputs or not all(p.exists() for p in stage.outputs):
+        return False
+    newest_input = max((p.stat().st_mtime for p in stage.inputs if p.exists()), default=0.0)
+    return min(p.stat().st_mtime for p in stage.outputs) >= newest_input
+
+
+def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> list[Stage]:
+    """The pipeline, in order: dataset, detect, fit, simulate.
+
+    Parameters
+    ----------
+    root
+        The dataset folder: the synthetic cache to generate into, or a dataset used as it is
+        (:func:`uses_existing_dataset`; then the dataset stage only checks it and draws its sheet).
+    out
+        The output folder of every stage.
+    seed, profile
+        Passed to every command (``--seed``, ``--profile``). In the ``quick`` profile the fit stage
+        accepts failed MCMC diagnostics (its short chains are a smoke run).
+
+    Returns
+    -------
+    list of Stage
+    """
+    from scrppl.datasets.core import INDEX_FILE
+
+    root, out = Path(root), Path(out)
+    common = ("--seed", str(seed), "--profile", profile)
+    where = ("--root", str(root))
+    outdir = ("--out", str(out))
+    sheet = out / "figures" / "dataset-sheet.png"
+    if uses_existing_dataset(root):
+        # A Savarese tree has no index file: the folder itself stands for its contents.
+        index = root / INDEX_FILE if (root / INDEX_FILE).exists() else root
+        dataset = Stage(
+            "dataset",
+            "scrppl.cli.dataset",
+            (
+                ("dataset", "info", *where, "--seed", str(seed)),
+                ("dataset", "sheet", *where, *outdir, "--seed", str(seed), "--no-validate"),
+            ),
+            (index,),
+            (sheet,),
+        )
+    else:
+        index = root / INDEX_FILE
+        dataset = Stage(
+            "dataset",
+            "scrppl.cli.dataset",
+            (
+                ("dataset", "make", *where, *common),
+                ("dataset", "sheet", *where, *outdir, "--seed", str(seed)),
+            ),
+            (),
+            (index, sheet),
+        )
+    return [
+        dataset,
+        Stage(
+            "detect",
+            "scrppl.cli.detect",
+            (("detect", *where, *outdir, *common),),
+            (index,),
+            (out / "responses.nc",),
+        ),
+        Stage(
+            "fit",
+            "scrppl.cli.fit",
+            # The quick profile's short chains are a smoke run: its diagnostics are reported, not enforced.
+            (
+                (
+                    "fit",
+                    *outdir,
+                    *common,
+                    *(("--accept-diagnostics",) if profile == "quick" else ()),
+                ),
+            ),
+            (out / "responses.nc",),
+            (out / "models" / "diagnostics.json",),
+            takes_force=True,
+        ),
+        Stage(
+            "simulate",
+            "scrppl.cli.simulate",
+            (("simulate", *outdir, *common),),
+            (out / "models" / "diagnostics.json",),
+            (out / "trials.nc",),
+            takes_force=True,
+        ),
+    ]
+
+
+def uses_existing_dataset(root: Path) -> bool:
+    """Whether ``root`` holds a dataset that is used as it is rather than generated.
+
+    True for a copy of the Savarese dataset and for a saved index of another source; false for the
+    synthetic cache (complete or unfinished), a missing folder and anything else, which the dataset
+    stage hands to ``scrppl dataset make``.
+    """
+    from scrppl.datasets import dataset_layout
+
+    return dataset_layout(root) in ("savarese", "index")
+
+
+def run_stages(
+    pipeline: Sequence[Stage],
+    run_command: Callable[[list[str]], int],
+    *,
+    force: bool = False,
+    log: Callable[[str], None] = lambda msg: print(msg, flush=True),
+) -> tuple[int, dict[str, float | str]]:
+    """Run every stage that is not current, in order, stopping at the first failing command.
+
+    A stage whose module is not installed is skipped (``"not available"``), as is a current one
+    (:func:`is_current`; ``"up to date"``) unless ``force``.
+
+    Parameters
+    ----------
+    pipeline
+        The stages (:func:`stages`).
+    run_command
+        Runs one ``scrppl`` command line and returns its exit status (``scrppl.cli.main``).
+    force
+        Rerun current stages, passing ``--force`` to the commands that take it.
+    log
+        Where progress lines go; a failing command is reported on ``sys.stderr``.
+
+    Returns
+    -------
+    status
+        0, or the exit status of the failing command.
+    timings
+        ``{stage name: seconds or "up to date" / "not available"}`` of the stages run so far.
+    """
+    timings: dict[str, float | str] = {}
+    for stage in pipeline:
+        if importlib.util.find_spec(stage.module) is None:
+            log(f"[reproduce] {stage.name}: not available in this version, skipped")
+            timings[stage.name] = "not available"
+            continue
+        if not force and is_current(stage):
+            log(f"[reproduce] {stage.name}: up to date, skipped")
+            timings[stage.name] = "up to date"
+            continue
+        log(f"[reproduce] {stage.name}: running")
+        t0 = time.perf_counter()
+        for argv in stage.argv:
+            status = run_command(list(argv) + (["--force"] if force and stage.takes_force else []))
+            if status:
+                print(
+                    f"[reproduce] {stage.name} failed (exit {status}): scrppl {' '.join(argv)}",
+                    file=sys.stderr,
+                )
+                return status, timings
+        timings[stage.name] = round(time.perf_counter() - t0, 1)
+        log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s")
+    return 0, timings
+
+
+def failed_fits(path: str | Path) -> list[str]:
+    """Sorted ``detector/target`` names whose report in ``diagnostics.json`` at ``path`` is not ok."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    diag = json.loads(path.read_text())
+    return sorted(k for k, v in diag.items() if isinstance(v, dict) and v.get("ok") is False)

@@ -1,0 +1,35 @@
+"""The reproduction pipeline as a library (:mod:`scrppl.pipeline`): running stages, reading failures."""
+
+import json
+
+from scrppl.pipeline import Stage, failed_fits, run_stages
+
+
+def test_run_stages_skips_current_and_unavailable_stages_and_stops_at_a_failure(tmp_path):
+    inp, outp = tmp_path / "in", tmp_path / "out"
+    inp.write_text("x")
+    outp.write_text("y")
+    current = Stage("current", "scrppl.pipeline", (("a",),), (inp,), (outp,), takes_force=True)
+    missing = Stage("missing", "scrppl.no_such_module", (("b",),), (), ())
+    failing = Stage("failing", "scrppl.pipeline", (("c", "1"), ("d",)), (), (tmp_path / "none",))
+    calls, lines = [], []
+
+    def run_command(argv):
+        calls.append(argv)
+        return 5 if argv[0] == "c" else 0
+
+    status, timings = run_stages([current, missing, failing], run_command, log=lines.append)
+    assert status == 5 and calls == [["c", "1"]]
+    assert timings == {"current": "up to date", "missing": "not available"}
+    assert any("current: up to date" in line for line in lines)
+    calls.clear()
+    status, timings = run_stages([current], run_command, force=True, log=lines.append)
+    assert status == 0 and calls == [["a", "--force"]] and isinstance(timings["current"], float)
+
+
+def test_failed_fits_reads_diagnostics(tmp_path):
+    path = tmp_path / "diagnostics.json"
+    assert failed_fits(path) == []
+    diag = {"thresholds": {"rhat_max": 1.01}, "sift/car": {"ok": False}, "dpm/car": {"ok": False}}
+    path.write_text(json.dumps({**diag, "dpm/shoe": {"ok": True}}))
+    assert failed_fits(path) == ["dpm/car", "sift/car"]
