@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -56,6 +57,7 @@ from scrppl.views import angular_distance, check_mask_shape, check_view_array
 __all__ = [
     "PLANNERS",
     "MODES",
+    "PlannerConfig",
     "candidate_views",
     "random_unseen_view",
     "posterior_entropy",
@@ -73,6 +75,37 @@ __all__ = [
 PLANNERS = ("random", "sampled", "quadrature", "plug_in")
 #: Candidate-set modes.
 MODES = ("azimuth", "all")
+
+
+class PlannerConfig(NamedTuple):
+    """How the next view is chosen: one value passed to every layer that plans.
+
+    The planning counterpart of :class:`scrppl.models.mcmc.SamplerConfig`: :func:`choose_view`, the
+    trial runner, the experiment and the extensions take one ``PlannerConfig`` instead of a row of
+    keyword arguments. It is hashable, so it can be a static argument of a compiled function.
+
+    Attributes
+    ----------
+    planner
+        One of :data:`PLANNERS`.
+    objective
+        The entropy to minimise, one of :data:`scrppl.belief.OBJECTIVES`.
+    mode
+        Candidate set, one of :data:`MODES`.
+    n_samples
+        ``M``, the number of ``(state, response)`` draws per candidate of the sampled planner (eq. 5).
+    order
+        Gauss-Hermite order of the quadrature planner.
+    motion_cost
+        Nats per azimuth bin travelled, added to each candidate's expected entropy (``0`` disables).
+    """
+
+    planner: str = "sampled"
+    objective: str = "joint"
+    mode: str = "azimuth"
+    n_samples: int = 256
+    order: int = 32
+    motion_cost: float = 0.0
 
 
 def _check_objective(objective: str) -> None:
