@@ -5,6 +5,9 @@
 * `scrppl.datasets.synthetic.render` -- the off-screen renderer (floor, shadows, light, mask);
 * `scrppl.datasets.synthetic.floors`, `~.backgrounds`, `~.compose` -- floor textures, background
   pools split between training and held-out instances, compositing and camera development;
+* `scrppl.datasets.synthetic.domain`, `~.nuisances` -- imaging domains (presets ``clean``, ``robot``,
+  ``hard``): catalogue training images versus robot images with clutter, occlusion, truncation, light,
+  blur, noise, far-distance resolution and JPEG compression;
 * `scrppl.datasets.synthetic.config`, `~.styles`, `~.generate` -- :class:`SyntheticConfig`, the
   seeded random choices of every image, and :func:`make_synthetic` / :func:`load_or_make`
   (re-exported here).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -9,9 +10,10 @@ from typing import Any
 import numpy as np
 
 from scrppl.datasets.core import DEFAULT_SPLIT_PROPORTIONS
+from scrppl.datasets.synthetic.domain import PRESET_NAMES, Domain
 from scrppl.views import ViewGrid
 
-__all__ = ["SyntheticConfig", "PROFILES"]
+__all__ = ["SyntheticConfig", "PROFILES", "PRESET_NAMES"]
 
 #: Profiles of :meth:`SyntheticConfig.for_profile`.
 PROFILES = ("full", "book", "quick", "tiny")
@@ -44,6 +46,10 @@ class SyntheticConfig:
         development and noise (1: the default dataset; 0: exact grid views, a neutral camera).
     fill
         Share of the half-frame the object spans in its tightest view at scale 1.
+    domain
+        The imaging domain of each split (`scrppl.datasets.synthetic.domain.Domain`): the default,
+        ``"clean"``, renders every split alike; the ``"robot"`` and ``"hard"`` presets render the train
+        split as catalogue images and the fit and test splits with a real room's nuisances.
     """
 
     categories: tuple[str, ...] = field(default_factory=_all_categories)
@@ -54,6 +60,7 @@ class SyntheticConfig:
     split_proportions: tuple[float, float, float] = DEFAULT_SPLIT_PROPORTIONS
     jitter: float = 1.0
     fill: float = 0.9
+    domain: Domain = field(default_factory=Domain)
 
     def __post_init__(self) -> None:
         cats = self.categories
@@ -104,6 +111,12 @@ class SyntheticConfig:
             raise ValueError(f"fill must lie in [0.1, 1], got {self.fill!r}")
         object.__setattr__(self, "jitter", float(self.jitter))
         object.__setattr__(self, "fill", float(self.fill))
+        if isinstance(self.domain, str):
+            object.__setattr__(self, "domain", Domain.preset(self.domain))
+        if not isinstance(self.domain, Domain):
+            raise ValueError(
+                f"domain must be a Domain or a preset name ({', '.join(PRESET_NAMES)}), got {self.domain!r}"
+            )
 
     @property
     def n_images(self) -> int:
@@ -111,8 +124,12 @@ class SyntheticConfig:
         return len(self.categories) * self.n_instances * self.grid.n_views
 
     @classmethod
-    def for_profile(cls, name: str) -> SyntheticConfig:
-        """A named configuration.
+    def for_profile(cls, name: str, preset: str = "clean") -> SyntheticConfig:
+        """A named configuration, in the imaging domain of a preset.
+
+        The profile fixes what is rendered; ``preset`` (``"clean"``, ``"robot"`` or ``"hard"``, see
+        `scrppl.datasets.synthetic.domain`) how the splits are photographed. ``"clean"`` gives the
+        profile's original images.
 
         * ``"full"``: all ten categories x 10 instances x the Savarese grid (8 x 3 x 3) = 7,200 images.
         * ``"quick"``: four categories x 6 instances x 8 azimuths at one height and scale (192 images,
@@ -122,6 +139,11 @@ class SyntheticConfig:
         * ``"tiny"``: three categories x 2 instances x 8 azimuths at one height and scale (48 images,
           seconds) -- for tests.
         """
+        domain = Domain.preset(preset)
+        return dataclasses.replace(cls._profile(name), domain=domain)
+
+    @classmethod
+    def _profile(cls, name: str) -> SyntheticConfig:
         if name == "full":
             return cls()
         if name == "quick":
@@ -155,6 +177,7 @@ class SyntheticConfig:
             "split_proportions": list(self.split_proportions),
             "jitter": self.jitter,
             "fill": self.fill,
+            "domain": self.domain.to_dict(),
         }
 
     @classmethod
@@ -164,4 +187,5 @@ class SyntheticConfig:
         d["grid"] = ViewGrid.from_dict(d["grid"])
         d["categories"] = tuple(d["categories"])
         d["split_proportions"] = tuple(d["split_proportions"])
+        d["domain"] = Domain.from_dict(d.get("domain", {}))  # folders made before domains: clean
         return cls(**d)

@@ -24,6 +24,15 @@ Splits. Instances are assigned to ``train``/``fit``/``test`` by `scrppl.datasets
 *before* rendering, because the background pool of an image depends on its instance's split
 (`scrppl.datasets.synthetic.backgrounds`): training images and held-out images never share a
 background.
+
+Domains. ``config.domain`` (`scrppl.datasets.synthetic.domain`) says how each split is photographed. In
+the ``robot`` and ``hard`` presets the ``train`` split -- the only images the detectors are trained on --
+is rendered as catalogue images (exact grid views on a studio backdrop under studio light, neutral camera),
+while the ``fit`` and ``test`` splits, which the viewpoint models are fitted on and the simulator observes,
+gain the nuisances of a real room (`scrppl.datasets.synthetic.nuisances`), as in Meger et al. (2010),
+whose detector was trained on PASCAL VOC and run on another dataset. The dataset's metadata records the
+domain with every parameter (``meta["config"]["domain"]``). The ``clean`` preset renders every split as
+before, byte for byte.
 """
 
 from __future__ import annotations
@@ -103,15 +112,22 @@ def _renderer(width: int, height: int):
 class _Instance:
     """A loaded instance: the renderer set up with its shape, floor and light."""
 
-    def __init__(self, config: SyntheticConfig, seed: int, category: str, instance: int):
+    def __init__(
+        self, config: SyntheticConfig, seed: int, category: str, instance: int, split: str = "test"
+    ):
         from scrppl.datasets.synthetic.floors import make_floor
+        from scrppl.datasets.synthetic.nuisances import plain_floor
         from scrppl.datasets.synthetic.render import base_distance
         from scrppl.datasets.synthetic.shapes import build_instance
 
         self.style = instance_style(seed, category, instance, config.jitter)
+        self.catalogue = config.domain.catalogue and split == "train"
+        self.tone = _studio_tone(seed, category, instance) if self.catalogue else None
         self.renderer = _renderer(config.width, config.height)
         self.renderer.set_instance(build_instance(category, self.style.shape_seed))
-        self.renderer.set_floor(make_floor(self.style.floor_seed))
+        self.renderer.set_floor(
+            plain_floor(self.tone) if self.catalogue else make_floor(self.style.floor_seed)
+        )
         self.distance = base_distance(
             self.renderer.vertices,
             config.grid,
@@ -155,15 +171,38 @@ def render_view(
     from scrppl.datasets.synthetic.compose import composite, develop
     from scrppl.datasets.synthetic.render import Lighting, kelvin_to_rgb, view_camera
 
-    loaded = _loaded or _Instance(config, seed, category, instance)
+    nuisance = config.domain.robot
+    robot = not (config.domain.catalogue and split == "train") and not nuisance.is_clean
+    sprites = []
+    if robot and nuisance.distractors[1] > 0:  # distractors of the other categories
+        sprites = [sp for sp in _sprite_pool(seed) if sp.category != category]
+    loaded = _loaded or _Instance(config, seed, category, instance, split)
+    if loaded.catalogue:
+        return _render_catalogue(config, seed, category, instance, view, loaded)
     st = loaded.style
     vs = view_style(seed, category, instance, view, split, config)
     r = loaded.renderer
+    direction, intensity, kelvin = (
+        st.light_direction,
+        st.light_intensity * vs.light_gain,
+        st.light_kelvin,
+    )
+    if robot:
+        from scrppl.datasets.synthetic import nuisances as nz
+
+        a, e, s = (int(v) for v in view)
+        nrng = np.random.default_rng(
+            [int(seed), _category_key(category), int(instance), a, e, s, 4]
+        )
+        nd = nz.draw_nuisance(nrng, nuisance, config.grid.scales[s], len(sprites))
+        direction = nz.relight_direction(direction, nd, nuisance.light_direction)
+        intensity *= nd.light_gain
+        kelvin = kelvin if nd.light_kelvin is None else nd.light_kelvin
     r.set_lighting(
         Lighting(
-            direction=st.light_direction,
-            intensity=st.light_intensity * vs.light_gain,
-            color=kelvin_to_rgb(st.light_kelvin),
+            direction=direction,
+            intensity=intensity,
+            color=kelvin_to_rgb(kelvin),
             ambient=st.ambient,
         )
     )
@@ -176,12 +215,141 @@ def render_view(
         jitter=vs.camera_jitter,
     )
     frame = r.render(camera)
+    if robot and nd.truncation is not None:
+        frame = nz.truncate_frame(frame, *nd.truncation)
     background = render_background(vs.background, config.width, config.height)
     # the farther the camera, the more floor it sees: widen the floor's fade with the distance
     widen = float(np.sqrt(config.grid.scales[view[2]] / min(config.grid.scales)))
     image = composite(frame, background, (st.fade[0] * widen, st.fade[1] * widen))
+    if not robot:
+        image = develop(np.random.default_rng(vs.noise_seed), image, vs.development)
+        return image, frame.object_mask, vs.development.jpeg_quality
+    mask = frame.object_mask
+    image, mask = nz.paste_sprites(image, mask, sprites, nd.distractors)
+    if nd.occluder is not None and mask.any():
+        image, mask, _ = nz.occlude(image, mask, *nd.occluder, _occluder_texture(seed, nd, config))
+    image = image * np.asarray(nd.color_gain, np.float32)
+    image = nz.optics(image, nd.defocus, nd.motion, nd.resolution)
     image = develop(np.random.default_rng(vs.noise_seed), image, vs.development)
-    return image, frame.object_mask, vs.development.jpeg_quality
+    image = nz.add_noise(nd.noise_seed, image, nd.noise)
+    quality = vs.development.jpeg_quality if nd.jpeg_quality is None else nd.jpeg_quality
+    return image, mask, quality
+
+
+def _category_key(category: str) -> int:
+    import zlib
+
+    return zlib.crc32(category.encode())
+
+
+def _studio_tone(seed: int, category: str, instance: int) -> np.ndarray:
+    """The backdrop and floor colour of an instance's catalogue photographs: a light, nearly neutral tone."""
+    rng = np.random.default_rng([int(seed), _category_key(category), int(instance), 3])
+    return np.clip(rng.uniform(0.68, 0.95) * (1.0 + rng.uniform(-0.04, 0.04, 3)), 0.0, 1.0)
+
+
+def _render_catalogue(
+    config: SyntheticConfig,
+    seed: int,
+    category: str,
+    instance: int,
+    view: tuple[int, int, int],
+    loaded: _Instance,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """A catalogue photograph: the exact grid view on a studio backdrop, studio light, neutral camera."""
+    from scrppl.datasets.synthetic.compose import composite, develop, draw_development
+    from scrppl.datasets.synthetic.nuisances import studio_backdrop
+    from scrppl.datasets.synthetic.render import Lighting, kelvin_to_rgb, view_camera
+
+    a, e, s = (int(v) for v in view)
+    rng = np.random.default_rng([int(seed), _category_key(category), int(instance), a, e, s, 3])
+    r = loaded.renderer
+    phi = np.deg2rad(a * config.grid.step_degrees + 35.0)  # key light beside the camera
+    el = np.deg2rad(50.0)
+    r.set_lighting(
+        Lighting(
+            direction=np.array([np.cos(el) * np.cos(phi), np.cos(el) * np.sin(phi), np.sin(el)]),
+            intensity=1.1,
+            color=kelvin_to_rgb(5600.0),
+            ambient=0.42,
+        )
+    )
+    camera = view_camera(
+        config.grid, a, e, s, distance=loaded.distance, height=r.object_height, radius=r.radius
+    )
+    frame = r.render(camera)
+    # a seamless sweep: the backdrop takes the colour of the lit floor, into which the floor fades
+    floor = frame.rgb[frame.floor_mask]
+    tone = np.median(floor, axis=0) / 255.0 if len(floor) else loaded.tone
+    background = studio_backdrop(rng, tone, config.width, config.height)
+    widen = float(np.sqrt(config.grid.scales[s] / min(config.grid.scales)))
+    fade = loaded.style.fade
+    image = composite(frame, background, (fade[0] * widen, fade[1] * widen))
+    dev = draw_development(rng, 0.0)  # neutral: no colour jitter, no noise, JPEG 95
+    image = develop(np.random.default_rng(0), image, dev)
+    return image, frame.object_mask, dev.jpeg_quality
+
+
+def _occluder_texture(seed: int, nd, config: SyntheticConfig) -> np.ndarray:
+    """The surface of an occluder: a darkened crop of a held-out background source."""
+    from scrppl.datasets.synthetic.backgrounds import draw_background, render_background
+
+    k, cx, cy, gain = nd.occluder_texture
+    rng = np.random.default_rng([int(seed), k, 5])
+    choice = draw_background(rng, "heldout", int(seed), config.width, config.height)
+    choice = choice._replace(
+        crop=(0.3, choice.crop[1], cx, cy), gain=tuple(gain * g for g in choice.gain), defocus=0.5
+    )
+    return render_background(choice, config.width, config.height)
+
+
+#: Distractor sprites: instances of every category seen from random views, rendered once per process.
+N_SPRITES = 30
+_SPRITE_SIZE = 160
+_SPRITES: dict[int, list] = {}
+
+
+def _sprite_pool(seed: int) -> list:
+    """The distractor sprites of a dataset seed (:class:`~scrppl.datasets.synthetic.nuisances.Sprite`).
+
+    Sprite ``k`` is an instance of category ``CATEGORIES[k % 10]`` with a shape seed, azimuth and
+    elevation drawn from ``default_rng([seed, 0xD157, k])`` (never an instance of the dataset), rendered
+    by a renderer of its own under a neutral light and cut out by its mask.
+    """
+    if seed in _SPRITES:
+        return _SPRITES[seed]
+    from scrppl.datasets.synthetic.floors import make_floor
+    from scrppl.datasets.synthetic.nuisances import Sprite
+    from scrppl.datasets.synthetic.render import Lighting, SceneRenderer, base_distance, view_camera
+    from scrppl.datasets.synthetic.shapes import CATEGORIES, build_instance
+    from scrppl.views import ViewGrid
+
+    r = SceneRenderer(
+        _SPRITE_SIZE, _SPRITE_SIZE
+    )  # its own window: the dataset's renderer keeps its instance
+    r.set_floor(make_floor(0))
+    grid = ViewGrid(8, (20.0,), (1.0,))
+    pool = []
+    for k in range(N_SPRITES):
+        rng = np.random.default_rng([int(seed), 0xD157, k])
+        category_k = CATEGORIES[k % len(CATEGORIES)]
+        r.set_instance(build_instance(category_k, int(rng.integers(2**31))))
+        az = float(rng.uniform(0, 2 * np.pi))
+        r.set_lighting(
+            Lighting(direction=np.array([np.cos(az), np.sin(az), 1.2]), intensity=1.1, ambient=0.35)
+        )
+        d = base_distance(r.vertices, grid, aspect=1.0, fill=0.9)
+        cam = view_camera(
+            grid, int(rng.integers(8)), 0, 0, distance=d, height=r.object_height, radius=r.radius
+        )
+        frame = r.render(cam)
+        ys, xs = np.nonzero(frame.object_mask)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        rgb = frame.rgb[y0:y1, x0:x1].astype(np.float32) / 255.0
+        pool.append(Sprite(rgb, frame.object_mask[y0:y1, x0:x1].copy(), category_k))
+    r.close()
+    _SPRITES[seed] = pool
+    return pool
 
 
 class _Task(NamedTuple):
@@ -200,7 +368,10 @@ def _render_task(task: _Task) -> list[tuple[tuple[int, int, int], tuple[int, int
 
     config = SyntheticConfig.from_dict(task.config)
     root = Path(task.root)
-    loaded = _Instance(config, task.seed, task.category, task.instance)
+    nuisance = config.domain.robot
+    if not nuisance.is_clean and nuisance.distractors[1] > 0:
+        _sprite_pool(task.seed)
+    loaded = _Instance(config, task.seed, task.category, task.instance, task.split)
     out = []
     for view in task.views:
         view = tuple(int(v) for v in view)
@@ -244,6 +415,14 @@ def _provenance(config: SyntheticConfig, seed: int) -> dict[str, Any]:
         "seed": int(seed),
         "config": config.to_dict(),
     }
+
+
+def _normalised(meta: dict[str, Any]) -> dict[str, Any]:
+    """``meta`` with its configuration in today's form (a folder made before domains existed is clean)."""
+    try:
+        return {**meta, "config": SyntheticConfig.from_dict(meta["config"]).to_dict()}
+    except (ValueError, KeyError, TypeError):
+        return meta
 
 
 def _check_writable(root: Path) -> None:
@@ -320,8 +499,8 @@ def make_synthetic(
     prov = root / PROVENANCE_FILE
     if prov.exists():
         try:
-            old = json.loads(prov.read_text())
-        except json.JSONDecodeError:
+            old = _normalised(json.loads(prov.read_text()))
+        except (json.JSONDecodeError, ValueError, KeyError, TypeError):
             old = None
         if old != meta:
             raise ValueError(
@@ -431,7 +610,7 @@ def _existing(root: Path, meta: dict[str, Any]) -> MultiviewDataset | None:
         saved = json.loads((root / META_FILE).read_text()).get("meta", {})
     except json.JSONDecodeError:
         return None
-    mine = {k: saved.get(k) for k in meta}
+    mine = _normalised({k: saved.get(k) for k in meta})
     if mine != meta:
         raise ValueError(
             f"{root} holds a dataset made with another configuration, seed or renderer version "
