@@ -1,14 +1,33 @@
-"""Small I/O helpers shared by every stage: atomic writes and cache locations."""
+"""Small I/O helpers shared by every stage: atomic writes, cache locations and reading artefacts.
+
+Every stage reads what an earlier stage wrote through :func:`read_netcdf`, :func:`read_json` and
+:func:`read_npz`: a missing file is a :class:`FileNotFoundError` and a truncated or corrupt one a
+:class:`CorruptFileError`, each naming the file, what it was supposed to be (the *artefact*, such as
+"response table") and, where a rerun regenerates it, the command that does.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-__all__ = ["atomic_path", "default_cache_dir", "CACHE_ENV", "write_netcdf", "read_netcdf"]
+__all__ = [
+    "atomic_path",
+    "default_cache_dir",
+    "CACHE_ENV",
+    "CorruptFileError",
+    "write_netcdf",
+    "read_netcdf",
+    "read_json",
+    "read_npz",
+]
 
 #: Environment variable that overrides the default dataset/cache location.
 CACHE_ENV = "SCRPPL_CACHE"
@@ -62,12 +81,108 @@ def write_netcdf(obj, path: str | os.PathLike) -> Path:
     return path
 
 
-def read_netcdf(path: str | os.PathLike, what: str = "netCDF file"):
-    """Load a netCDF ``Dataset`` fully into memory; ``FileNotFoundError`` naming ``what`` if it is missing."""
+class CorruptFileError(ValueError):
+    """A file exists but cannot be read as the artefact it should be (truncated, corrupt, not that format).
+
+    A :class:`ValueError`, so that every command reports it as an error rather than a traceback.
+
+    Attributes
+    ----------
+    path
+        The file.
+    artefact
+        What it was supposed to be (``"response table"``, ``"trained detector"``, ...).
+    reason
+        What went wrong while reading it.
+    remedy
+        How to regenerate it (e.g. ``"rerun `scrppl detect`"``), or ``None`` when no command can.
+    """
+
+    def __init__(
+        self, path: str | os.PathLike, artefact: str, reason: str, remedy: str | None = None
+    ):
+        self.path, self.artefact, self.reason, self.remedy = Path(path), artefact, reason, remedy
+        message = f"{artefact} {self.path} is unreadable (truncated or corrupt?): {reason}"
+        super().__init__(message + (f"; {remedy}" if remedy else ""))
+
+
+def _require_file(path: Path, artefact: str, remedy: str | None) -> None:
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{artefact} not found: {path}" + (f" ({remedy})" if remedy else "")
+        )
+    if path.is_dir():
+        raise CorruptFileError(path, artefact, "it is a folder, not a file", remedy)
+
+
+def read_netcdf(
+    path: str | os.PathLike,
+    what: str = "netCDF file",
+    *,
+    remedy: str | None = None,
+    tree: bool = False,
+):
+    """Load a netCDF file (h5netcdf) fully into memory: an xarray ``Dataset``, or a ``DataTree`` if ``tree``.
+
+    Parameters
+    ----------
+    path
+        The file.
+    what
+        The artefact it holds, for messages (``"response table"``, ``"trials file"``, ...).
+    remedy
+        The command that regenerates it (``"rerun `scrppl detect`"``), added to every message.
+    tree
+        Read a ``DataTree`` (a file with groups, such as a hierarchical fit) instead of a ``Dataset``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If it does not exist.
+    CorruptFileError
+        If it exists but cannot be read (h5py raises a bare ``OSError`` for a truncated file).
+    """
     import xarray as xr
 
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{what} not found: {path}")
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
-        return ds.load()
+    _require_file(path, what, remedy)
+    try:
+        if tree:
+            with xr.open_datatree(path, engine="h5netcdf") as obj:
+                return obj.load()
+        with xr.open_dataset(path, engine="h5netcdf") as obj:
+            return obj.load()
+    except (OSError, ValueError, KeyError, RuntimeError, EOFError) as err:
+        raise CorruptFileError(path, what, f"{type(err).__name__}: {err}", remedy) from err
+
+
+def read_json(
+    path: str | os.PathLike, what: str = "JSON file", *, remedy: str | None = None
+) -> Any:
+    """The JSON value in the file ``path``; errors as :func:`read_netcdf` (also for text that is not UTF-8)."""
+    path = Path(path)
+    _require_file(path, what, remedy)
+    try:
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise CorruptFileError(
+            path, what, f"not UTF-8 text ({err.reason} at byte {err.start})", remedy
+        ) from err
+    except (OSError, json.JSONDecodeError) as err:
+        raise CorruptFileError(path, what, f"not valid JSON ({err})", remedy) from err
+
+
+def read_npz(
+    path: str | os.PathLike, what: str = "NumPy archive", *, remedy: str | None = None
+) -> dict[str, Any]:
+    """Every array of a ``.npz`` archive (loaded, no pickles); errors as :func:`read_netcdf`."""
+    import numpy as np
+
+    path = Path(path)
+    _require_file(path, what, remedy)
+    try:
+        # opened here so that it is closed when NumPy fails (np.load leaks its own handle then)
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as err:
+        raise CorruptFileError(path, what, f"{type(err).__name__}: {err}", remedy) from err

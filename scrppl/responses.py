@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from scrppl._io import read_netcdf, write_netcdf
+from scrppl._io import CorruptFileError, read_netcdf, write_netcdf
 from scrppl.views import ViewGrid
 
 __all__ = [
@@ -147,6 +147,12 @@ def save_response_table(ds: xr.Dataset, path: str | Path) -> Path:
 
 def load_response_table(path: str | Path) -> xr.Dataset:
     """Load and validate a response table written by :func:`save_response_table`."""
-    ds = read_netcdf(path, "response table")
-    validate_response_table(ds)
+    remedy = "rerun `scrppl detect` to regenerate it"
+    ds = read_netcdf(path, "response table", remedy=remedy)
+    try:
+        validate_response_table(ds)
+    except (ValueError, KeyError) as err:
+        raise CorruptFileError(
+            path, "response table", f"not a valid response table: {err}", remedy
+        ) from err
     return ds

@@ -151,10 +151,21 @@ def test_info_on_a_savarese_folder(tmp_path, capsys):
 def test_info_on_a_broken_savarese_folder_names_the_file(tmp_path, capsys):
     write_savarese_instance(tmp_path, "iron", 1)
     (tmp_path / "iron/iron_1/mask/Iron_1_A5_H1_S1.mask").unlink()
-    code, _, err = run(["dataset", "info", "--root", str(tmp_path), "--no-progress"], capsys)
+    argv = ["dataset", "info", "--root", str(tmp_path), "--no-progress"]
+    code, _, err = run([*argv, "--errors", "raise"], capsys)
     assert code == 1
     assert "Iron_1_A5_H1_S1" in err and "Traceback" not in err
     assert "no index.csv" in err  # says how the folder was read
+    # by default the bad file is reported, and every other image used
+    code, out, err = run([*argv, "--json"], capsys)
+    assert code == 0
+    info = json.loads(out)
+    assert info["images"] == 7 and len(info["problems"]) == 1
+    problem = info["problems"][0]
+    assert (
+        Path(problem["path"]).name == "Iron_1_A5_H1_S1.bmp" and "missing mask" in problem["message"]
+    )
+    assert "1 file(s) of the dataset" in err and "iron/iron_1/Iron_1_A5_H1_S1.bmp" in err
 
 
 def test_info_on_an_unfinished_synthetic_folder(dataset_root, tmp_path, capsys):
@@ -228,8 +239,8 @@ def test_make_passes_profile_seed_workers_and_progress(tmp_path, capsys, monkeyp
 
     class SyntheticConfig:
         @classmethod
-        def for_profile(cls, name):
-            return ("config", name)
+        def for_profile(cls, name, preset="clean"):
+            return ("config", name) if preset == "clean" else ("config", name, preset)
 
     def make_synthetic(root, config, seed=0, *, workers=None, progress=True):
         calls.append((Path(root), config, seed, workers, progress))
@@ -255,6 +266,12 @@ def test_make_passes_profile_seed_workers_and_progress(tmp_path, capsys, monkeyp
         0,
         None,
         True,
+    )
+    # another imaging-domain preset: its own cache folder
+    assert main(["dataset", "make", "--preset", "robot"]) == 0
+    assert calls[-1][:2] == (
+        tmp_path / "cache" / "synthetic-full-robot-seed0",
+        ("config", "full", "robot"),
     )
 
 

@@ -204,10 +204,39 @@ def rendered_trees(tmp_path_factory):
     return rendered.root, root
 
 
+def add_download_quirks(root: Path) -> tuple[set[Path], set[tuple[str, int, int]]]:
+    """Give a Savarese copy of the rendered trees the quirks of a real download.
+
+    A missing view (image and mask gone), a JPEG cut to half its bytes (OpenCV would decode it), a mask
+    that is not UTF-8 text, and stray files; all in instances of the training split (with one fit and
+    one test instance per category, the fit needs every view of its instance and the simulator a
+    complete azimuth ring). Returns the bad files and the views ``(category, instance,
+    azimuth)`` (0-based) that must not be used: the missing and the bad ones.
+    """
+    (root / "bicycle/bicycle_1/Bicycle_1_A8_H1_S1.bmp").unlink()
+    (root / "bicycle/bicycle_1/mask/Bicycle_1_A8_H1_S1.mask").unlink()
+    bmp = root / "bicycle/bicycle_4/Bicycle_4_A3_H1_S1.bmp"
+    jpg = bmp.with_suffix(".jpg")
+    assert cv2.imwrite(str(jpg), cv2.imread(str(bmp)))
+    bmp.unlink()
+    jpg.write_bytes(jpg.read_bytes()[: jpg.stat().st_size // 2])
+    mask = root / "mouse/mouse_2/mask/mouse_2_A6_H1_S1.mask"
+    mask.write_bytes(mask.read_bytes().replace(b"1", b"\xb9", 1))
+    (root / "bicycle/bicycle_1/Thumbs.db").write_bytes(b"junk")
+    (root / "mouse/mouse_2/._mouse_2_A1_H1_S1.bmp").write_bytes(b"\x00\x05")
+    (root / "mouse/list.txt").write_text("mouse_1 mouse_2")
+    return {jpg, mask}, {("bicycle", 0, 7), ("bicycle", 3, 2), ("mouse", 1, 5)}
+
+
 @pytest.mark.slow
 def test_reproduce_quick_on_a_savarese_tree(rendered_trees, tmp_path, capsys, monkeypatch):
-    """`scrppl reproduce --profile quick --root <Savarese tree>`: no generation, every stage, the report."""
+    """`scrppl reproduce --profile quick --root <Savarese tree>`: no generation, every stage, the report.
+
+    The tree has the quirks of a real download (case, stray files, a missing view, a truncated JPEG, a
+    mask that is not UTF-8): the bad files are reported and every valid image is used.
+    """
     from scrppl.cli import fit, simulate
+    from scrppl.datasets.problems import read_problems
 
     synthetic_root, root = rendered_trees
     # the same views through both layouts: the synthetic cache and its Savarese copy
@@ -216,6 +245,15 @@ def test_reproduce_quick_on_a_savarese_tree(rendered_trees, tmp_path, capsys, mo
     assert (cache.name, copy.name) == ("synthetic", "savarese") and len(copy) == len(cache) == 64
     view = ["category", "instance", "azimuth", "elevation", "scale", "x0", "y0", "x1", "y1"]
     assert copy.index[view].equals(cache.index[view])  # boxes from the ASCII masks agree
+
+    bad, unused = add_download_quirks(root)
+    valid = cache.index[
+        [
+            (c, i, a) not in unused
+            for c, i, a in cache.index[["category", "instance", "azimuth"]].values
+        ]
+    ]
+    assert len(valid) == 64 - 3
 
     # a smoke run of the pipeline, not of the statistics: short chains, few trials
     monkeypatch.setitem(fit.PROFILE_DRAWS, "quick", (60, 60))
@@ -229,23 +267,45 @@ def test_reproduce_quick_on_a_savarese_tree(rendered_trees, tmp_path, capsys, mo
     assert code == 0, err
     assert f"using the dataset at {root}" in stdout
     assert not (root / "index.csv").exists() and not (root / "synthetic.json").exists()
+    # the problems: printed as a table, written beside the outputs, one per bad file
+    problems = read_problems(out / "dataset-problems.csv")
+    assert {p.path for p in problems} == bad
+    assert {p.path.name: p.artefact for p in problems} == {
+        "Bicycle_4_A3_H1_S1.jpg": "image",
+        "mouse_2_A6_H1_S1.mask": "mask",
+    }
+    assert "bicycle/bicycle_4/Bicycle_4_A3_H1_S1.jpg" in err and "truncated JPEG" in err
+    # nothing valid dropped: every valid view, and only those, was scored
     from scrppl.responses import load_response_table
 
     table = load_response_table(out / "responses.nc")
     assert sorted(str(t) for t in table["target"].values) == ["bicycle", "mouse"]
     assert sorted(set(table["category"].values.astype(str).ravel())) == ["bicycle", "mouse"]
+    scored = table["score"].isel(detector=0, target=0).notnull()
+    assert int(scored.sum()) == len(valid)
+    for c, i, a, e, s in valid[["category", "instance", "azimuth", "elevation", "scale"]].values:
+        assert bool(scored.sel(category=c, instance=i, azimuth=a, elevation=e, scale=s))
     diagnostics = json.loads((out / "models" / "diagnostics.json").read_text())
     assert {"sift/mouse", "bof/bicycle", "dpm/mouse"} <= set(diagnostics)
     assert (out / "trials.nc").exists()
     report = (out / "report.md").read_text()
     assert "savarese" in report
+    assert (
+        "2 file(s) of the dataset could not be used" in report and "mouse_2_A6_H1_S1.mask" in report
+    )
     assert cv2.imread(str(out / "figures" / "dataset-sheet.png")) is not None
     run_info = json.loads((out / "run.json").read_text())
     assert Path(run_info["dataset_root"]) == root.resolve()
     # a second run finds every stage current
     code, stdout, _ = run(argv, capsys)
     assert code == 0
-    assert stdout.count("up to date, skipped") == 4
+    assert ": running" not in stdout and stdout.count("up to date, skipped") >= 4
+    # with --errors raise the first bad file stops the run, named
+    code, _, err = run(
+        ["detect", "--root", root, "--out", tmp_path / "strict", "--errors", "raise", "--quiet"],
+        capsys,
+    )
+    assert code == 1 and ("Bicycle_4_A3_H1_S1.jpg" in err or "mouse_2_A6_H1_S1.mask" in err)
 
 
 def test_detect_opens_a_savarese_tree(savarese_root, tmp_path, capsys):

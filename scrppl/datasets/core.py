@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from scrppl._io import atomic_path
+from scrppl.datasets.problems import Problem
 from scrppl.views import ViewGrid
 
 __all__ = [
@@ -71,12 +72,27 @@ def read_ascii_mask(path: str | Path) -> np.ndarray:
     """Read a Savarese-style ASCII mask: two integers (rows, columns), then ``rows*columns`` values.
 
     Returns a boolean array of shape ``(rows, columns)`` (non-zero values are object pixels).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file cannot be read.
+    ValueError
+        If it is not UTF-8 text, or not two positive dimensions followed by exactly ``rows * columns``
+        numbers; the message names the file.
     """
     path = Path(path)
     try:
-        tokens = path.read_text().split()
+        raw = path.read_bytes()
     except OSError as err:
         raise FileNotFoundError(f"cannot read mask file {path}: {err}") from err
+    try:
+        tokens = raw.decode("utf-8").split()
+    except UnicodeDecodeError as err:
+        raise ValueError(
+            f"malformed ASCII mask {path}: not a text file (byte 0x{raw[err.start]:02X} at offset "
+            f"{err.start} is not valid UTF-8)"
+        ) from None
     if len(tokens) < 2:
         raise ValueError(f"malformed ASCII mask {path}: expected two dimensions then values")
     try:
@@ -178,6 +194,9 @@ class MultiviewDataset:
         A short name (``"synthetic"``, ``"savarese"``, ...).
     meta
         Free-form provenance (generator configuration, seed, ...), saved with the index.
+    problems
+        The files left out when the dataset was loaded, one :class:`~scrppl.datasets.problems.Problem`
+        each (:func:`~scrppl.datasets.savarese.load_savarese` with ``errors="report"``); not saved.
     """
 
     root: Path
@@ -185,9 +204,11 @@ class MultiviewDataset:
     grid: ViewGrid = field(default_factory=ViewGrid)
     name: str = "dataset"
     meta: dict[str, Any] = field(default_factory=dict)
+    problems: tuple[Problem, ...] = ()
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
+        self.problems = tuple(self.problems)
         missing = [c for c in INDEX_COLUMNS if c not in self.index.columns]
         if missing:
             raise ValueError(f"dataset index lacks columns {missing}")
@@ -290,16 +311,13 @@ class MultiviewDataset:
         return self.root / row["image"]
 
     def load_image(self, row: pd.Series) -> np.ndarray:
-        """The RGB image of a row, ``uint8`` array of shape ``(H, W, 3)``."""
-        import cv2
+        """The RGB image of a row, ``uint8`` array of shape ``(H, W, 3)``.
 
-        path = self.image_path(row)
-        if not path.exists():
-            raise FileNotFoundError(f"image file missing: {path}")
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise ValueError(f"unreadable image file (not a decodable image): {path}")
-        return bgr[:, :, ::-1].copy()
+        A truncated or corrupt file is a ``ValueError`` naming it (:func:`~scrppl.datasets.images.read_image`).
+        """
+        from scrppl.datasets.images import read_image
+
+        return read_image(self.image_path(row))[:, :, ::-1].copy()
 
     def load_mask(self, row: pd.Series) -> np.ndarray:
         """The object mask of a row, boolean array ``(H, W)`` (PNG/BMP images or Savarese ASCII)."""
@@ -311,9 +329,12 @@ class MultiviewDataset:
         if path.suffix.lower() in {".png", ".bmp", ".jpg", ".jpeg", ".pgm"}:
             import cv2
 
-            m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if m is None:
-                raise ValueError(f"unreadable mask image: {path}")
+            from scrppl.datasets.images import read_image
+
+            try:
+                m = read_image(path, cv2.IMREAD_GRAYSCALE)
+            except ValueError as err:
+                raise ValueError(f"unreadable mask image: {err}") from None
             return m > 127
         return read_ascii_mask(path)
 
@@ -337,7 +358,7 @@ class MultiviewDataset:
             labels[(c, i)] for c, i in zip(idx["category"], idx["instance"], strict=True)
         ]
         meta = {**self.meta, "split_seed": seed, "split_proportions": list(proportions)}
-        return MultiviewDataset(self.root, idx, self.grid, self.name, meta)
+        return MultiviewDataset(self.root, idx, self.grid, self.name, meta, self.problems)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable description (what ``scrppl dataset info --json`` prints)."""

@@ -25,6 +25,7 @@ from scrppl.datasets.core import (
     SYNTHETIC_PROVENANCE_FILE,
     MultiviewDataset,
 )
+from scrppl.datasets.problems import Errors, check_errors
 from scrppl.datasets.savarese import load_savarese, looks_like_savarese
 
 __all__ = ["open_dataset", "dataset_layout", "Layout", "LAYOUTS_EXPECTED"]
@@ -75,7 +76,12 @@ def dataset_layout(root: str | Path) -> Layout | None:
 
 
 def open_dataset(
-    root: str | Path, *, split_seed: int = 0, validate: bool = True, progress: bool = True
+    root: str | Path,
+    *,
+    split_seed: int = 0,
+    validate: bool = True,
+    progress: bool = True,
+    errors: Errors = "raise",
 ) -> MultiviewDataset:
     """The dataset in the folder ``root``: a saved index (the synthetic cache) or a Savarese tree.
 
@@ -91,6 +97,11 @@ def open_dataset(
         (see :func:`~scrppl.datasets.savarese.load_savarese`).
     progress
         For a Savarese tree: show a progress bar while validating.
+    errors
+        For a Savarese tree: ``"raise"`` at the first bad file, or ``"report"``: skip every bad file and
+        list them in the dataset's ``problems`` (see :func:`~scrppl.datasets.savarese.load_savarese`). A
+        saved index lists its files without reading them (its ``problems`` are empty); a bad image there
+        is an error naming it when it is read.
 
     Returns
     -------
@@ -106,12 +117,15 @@ def open_dataset(
         (the message names it).
     """
     root = Path(root)
+    check_errors(errors)
     layout = dataset_layout(root)
     if layout in ("synthetic", "index"):
         return MultiviewDataset.load(root)
     if layout == "savarese":
         try:
-            return load_savarese(root, split_seed=split_seed, validate=validate, progress=progress)
+            return load_savarese(
+                root, split_seed=split_seed, validate=validate, progress=progress, errors=errors
+            )
         except (FileNotFoundError, ValueError) as err:
             raise type(err)(
                 f"{err}\n(there is no {INDEX_FILE} in {root}, so it was read as a copy of the Savarese "

@@ -30,16 +30,26 @@ Layout accepted (and nothing else)
 Views that are not on disk are absent from the index (``missing_views`` in
 :meth:`~scrppl.datasets.core.MultiviewDataset.summary`); nothing is ever invented.
 
-Errors
-------
-The loader never guesses. It raises, naming the offending file or folder:
+Errors: raise or report
+-----------------------
+The loader never guesses. Each of these is a problem with one file or folder, which it names:
 
-* :class:`FileNotFoundError` for a missing root, a missing mask (or ``mask`` folder);
-* :class:`ValueError` for a root without categories, an empty category or instance folder, a
-  malformed instance-folder or image name, an image of another category or instance in an instance
-  folder, an azimuth/height/scale out of range, a view listed twice (e.g. the same view as ``.bmp`` and
-  ``.jpg``), two masks for one image, and -- when ``validate=True`` -- an image that does not decode,
-  a malformed or empty mask, or a mask whose size differs from its image's.
+* a missing mask (or ``mask`` folder) -- :class:`FileNotFoundError`;
+* an empty category or instance folder, a malformed instance-folder or image name, an image of another
+  category or instance in an instance folder, an azimuth/height/scale out of range, a view listed twice
+  (e.g. the same view as ``.bmp`` and ``.jpg``: neither is used), two masks for one image, an instance
+  in two folders, and -- when ``validate=True`` -- an image that does not decode or is truncated (a
+  JPEG without its end-of-image marker, a PNG without its ``IEND`` chunk or with a bad CRC, a BMP
+  shorter than its header says; :func:`~scrppl.datasets.images.image_defect`: OpenCV itself decodes
+  half a JPEG without an error), a mask that is not UTF-8 text, is malformed or empty, or whose size
+  differs from its image's -- :class:`ValueError`.
+
+With ``errors="raise"`` (the default) the first problem is raised. With ``errors="report"`` every bad
+file or folder is skipped (a bad mask skips its image; a bad folder everything in it), every valid image
+is loaded, and the dataset's ``problems`` lists one :class:`~scrppl.datasets.problems.Problem` per bad
+file. Splits are drawn over the instance folders that pass the name checks, so a file that fails to
+decode changes no other instance's split. A missing root, a root without category folders, category
+folders differing only by case, and a tree without a single usable image are errors in both modes.
 
 Validation and boxes
 --------------------
@@ -70,6 +80,8 @@ from scrppl.datasets.core import (
     bbox_from_mask,
     read_ascii_mask,
 )
+from scrppl.datasets.images import read_image
+from scrppl.datasets.problems import Errors, Problem, check_errors
 from scrppl.views import SAVARESE_GRID
 
 __all__ = [
@@ -168,34 +180,63 @@ def _read_mask(path: Path) -> np.ndarray:
     return (values == ord("1")).reshape(rows, cols)
 
 
-def _mask_files(folder: Path, first_image: Path) -> dict[str, Path]:
-    """Masks of one instance folder keyed by lower-cased stem."""
+class _Problems:
+    """Where the loader sends a bad file: raised at once (``errors="raise"``) or recorded (``"report"``)."""
+
+    def __init__(self, errors: str) -> None:
+        self.raise_ = check_errors(errors) == "raise"
+        self.found: list[Problem] = []
+
+    def __call__(
+        self, path: Path, artefact: str, message: str, error: type[Exception] = ValueError
+    ) -> None:
+        problem = Problem(path, artefact, message)
+        if self.raise_:
+            raise error(str(problem))
+        self.found.append(problem)
+
+
+def _mask_files(folder: Path, problems: _Problems) -> dict[str, Path | None] | None:
+    """Masks of one instance folder keyed by lower-cased stem (``None``: two files, already reported).
+
+    ``None`` (after reporting why) if the folder has no usable ``mask`` folder.
+    """
     candidates = [p for p in folder.iterdir() if p.is_dir() and p.name.lower() == MASK_FOLDER]
-    if not candidates:
-        raise FileNotFoundError(
-            f"no {MASK_FOLDER}/ folder in {folder} (needed for the mask of {first_image.name})"
-        )
-    if len(candidates) > 1:
-        raise ValueError(f"several mask folders in {folder}: {sorted(p.name for p in candidates)}")
-    masks: dict[str, Path] = {}
+    if len(candidates) != 1:
+        if candidates:
+            message = f"several mask folders: {sorted(p.name for p in candidates)}"
+            problems(folder, "mask folder", message)
+        else:
+            message = f"no {MASK_FOLDER}/ folder: none of the instance's images has a mask"
+            problems(folder / MASK_FOLDER, "mask folder", message, FileNotFoundError)
+        return None
+    masks: dict[str, Path | None] = {}
     for p in sorted(candidates[0].iterdir()):
         if not (p.is_file() and _visible(p) and p.suffix.lower() in MASK_SUFFIXES):
             continue
         key = p.stem.lower()
         if key in masks:
-            raise ValueError(f"two mask files for one image: {masks[key]} and {p}")
+            first = masks[key]
+            if first is not None:
+                problems(p, "mask", f"two mask files for one image: {first.name} and {p.name}")
+                masks[key] = None
+            continue
         masks[key] = p
     return masks
 
 
-def _scan_instance(root: Path, category: str, folder: Path) -> list[dict]:
-    """Index rows (without split and boxes) of one instance folder."""
+def _scan_instance(
+    root: Path, category: str, folder: Path, problems: _Problems
+) -> list[dict] | None:
+    """Index rows (without split and boxes) of one instance folder; ``None`` if the folder is unusable."""
     m = _INSTANCE_NAME.match(folder.name)
     if m is None or m.group("prefix").lower() != category.lower() or int(m.group("n")) < 1:
-        raise ValueError(
-            f"malformed instance folder name {folder.name!r} in {folder.parent}: expected "
-            f"{category}_<N> with N >= 1"
+        problems(
+            folder,
+            "instance folder",
+            f"malformed instance folder name {folder.name!r}: expected {category}_<N> with N >= 1",
         )
+        return None
     instance = int(m.group("n")) - 1
     images = sorted(
         p
@@ -203,32 +244,50 @@ def _scan_instance(root: Path, category: str, folder: Path) -> list[dict]:
         if p.is_file() and _visible(p) and p.suffix.lower() in IMAGE_SUFFIXES
     )
     if not images:
-        raise ValueError(f"empty instance folder (no images): {folder}")
-    masks = _mask_files(folder, images[0])
-    rows: list[dict] = []
-    seen: dict[tuple[int, int, int], Path] = {}
+        problems(folder, "instance folder", "empty instance folder (no images)")
+        return None
+    masks = _mask_files(folder, problems)
+    if masks is None:
+        return None
+    views: dict[tuple[int, int, int], list[Path]] = {}
     for path in images:
         try:
             prefix, inst, a, e, s = parse_view_name(path.stem)
         except ValueError as err:
-            raise ValueError(f"{err} (file {path})") from None
+            problems(path, "image", str(err))
+            continue
         if prefix.lower() != category.lower() or inst != instance:
-            raise ValueError(
-                f"image {path} names {prefix} instance {inst + 1}, but lies in the folder of "
-                f"{category} instance {instance + 1}"
+            problems(
+                path,
+                "image",
+                f"names {prefix} instance {inst + 1}, but lies in the folder of {category} instance "
+                f"{instance + 1}",
             )
-        if (a, e, s) in seen:
-            raise ValueError(
+            continue
+        views.setdefault((a, e, s), []).append(path)
+    rows: list[dict] = []
+    for (a, e, s), paths in views.items():
+        path = paths[0]
+        if len(paths) > 1:
+            problems(
+                path,
+                "image",
                 f"view A{a + 1}_H{e + 1}_S{s + 1} of {category} instance {instance + 1} listed twice: "
-                f"{seen[(a, e, s)].name} and {path.name} in {folder}"
+                f"{' and '.join(p.name for p in paths)} in {folder} (neither is used)",
             )
-        seen[(a, e, s)] = path
-        mask = masks.get(path.stem.lower())
-        if mask is None:
-            raise FileNotFoundError(
-                f"missing mask for image {path}: expected {folder / MASK_FOLDER / path.stem}"
-                f"{{{','.join(MASK_SUFFIXES)}}}"
+            continue
+        key = path.stem.lower()
+        if key not in masks:
+            problems(
+                path,
+                "image",
+                f"missing mask: expected {MASK_FOLDER}/{path.stem}{{{','.join(MASK_SUFFIXES)}}}",
+                FileNotFoundError,
             )
+            continue
+        mask = masks[key]
+        if mask is None:  # two mask files, reported above
+            continue
         rows.append(
             {
                 "category": category,
@@ -240,36 +299,59 @@ def _scan_instance(root: Path, category: str, folder: Path) -> list[dict]:
                 "mask": mask.relative_to(root).as_posix(),
             }
         )
+    if not rows:
+        return None  # every image reported above
     return rows
 
 
-def _validate(root: Path, index: pd.DataFrame, progress: bool) -> pd.DataFrame:
-    """Decode every image and mask; fill the box columns from the masks."""
+def _check_view(
+    image_path: Path, mask_path: Path
+) -> tuple[tuple[int, int, int, int] | None, Problem | None]:
+    """Decode one image and its mask: ``(box, None)``, or ``(None, the first problem found)``."""
     import cv2
+
+    try:
+        img = read_image(image_path, cv2.IMREAD_UNCHANGED)
+    except (FileNotFoundError, ValueError) as err:
+        message = str(err).removesuffix(f": {image_path}").removesuffix(f" {image_path}")
+        return None, Problem(image_path, "image", message)
+    try:
+        m = _read_mask(mask_path)
+    except (FileNotFoundError, ValueError) as err:
+        message = str(err).replace(f" {mask_path}", "")
+        return None, Problem(mask_path, "mask", message)
+    if m.shape != img.shape[:2]:
+        return None, Problem(
+            mask_path,
+            "mask",
+            f"mask is {m.shape[0]}x{m.shape[1]} but its image {image_path.name} is "
+            f"{img.shape[0]}x{img.shape[1]} (rows x columns)",
+        )
+    try:
+        return bbox_from_mask(m), None
+    except ValueError as err:
+        return None, Problem(mask_path, "mask", str(err))
+
+
+def _validate(root: Path, index: pd.DataFrame, problems: _Problems, progress: bool) -> pd.DataFrame:
+    """Decode every image and mask; fill the box columns from the masks; drop (or raise on) bad views."""
     from tqdm.auto import tqdm
 
-    boxes = np.empty((len(index), 4), dtype=np.int64)
+    boxes = np.full((len(index), 4), -1, dtype=np.int64)
+    good = np.ones(len(index), dtype=bool)
     pairs = zip(index["image"], index["mask"], strict=True)
     for k, (image, mask) in enumerate(
         tqdm(pairs, total=len(index), desc="checking Savarese images", disable=not progress)
     ):
-        image_path, mask_path = root / image, root / mask
-        img = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise ValueError(f"unreadable image file (OpenCV cannot decode it): {image_path}")
-        m = _read_mask(mask_path)
-        if m.shape != img.shape[:2]:
-            raise ValueError(
-                f"mask {mask_path} is {m.shape[0]}x{m.shape[1]} but its image {image_path} is "
-                f"{img.shape[0]}x{img.shape[1]} (rows x columns)"
-            )
-        try:
-            boxes[k] = bbox_from_mask(m)
-        except ValueError as err:
-            raise ValueError(f"{err}: {mask_path}") from None
+        box, problem = _check_view(root / image, root / mask)
+        if problem is not None:
+            problems(problem.path, problem.artefact, problem.message)
+            good[k] = False
+        else:
+            boxes[k] = box
     out = index.copy()
     out[["x0", "y0", "x1", "y1"]] = boxes
-    return out
+    return out[good].reset_index(drop=True)
 
 
 def looks_like_savarese(root: str | Path) -> bool:
@@ -303,6 +385,7 @@ def load_savarese(
     proportions: Sequence[float] = DEFAULT_SPLIT_PROPORTIONS,
     validate: bool = True,
     progress: bool = True,
+    errors: Errors = "raise",
 ) -> MultiviewDataset:
     """Index a copy of Savarese et al.'s 3D Object Category dataset.
 
@@ -324,20 +407,35 @@ def load_savarese(
         check names and the presence of masks, and leave the boxes as ``-1`` (computed on demand).
     progress
         Show a progress bar while validating.
+    errors
+        ``"raise"`` (default): stop at the first bad file or folder, with an error naming it.
+        ``"report"``: skip every bad file or folder, load every valid image, and list what was skipped
+        in the dataset's :attr:`~scrppl.datasets.core.MultiviewDataset.problems` (one
+        :class:`~scrppl.datasets.problems.Problem` per file, naming it and what is wrong).
 
     Returns
     -------
     MultiviewDataset
-        Named ``"savarese"`` with grid ``SAVARESE_GRID`` and one index row per image found.
+        Named ``"savarese"`` with grid ``SAVARESE_GRID``, one index row per valid image found, and
+        ``problems`` (empty with ``errors="raise"``).
 
     Raises
     ------
     FileNotFoundError
-        If ``root`` does not exist, or an image has no mask.
+        If ``root`` does not exist, or (``errors="raise"``) an image has no mask.
     ValueError
-        For any malformed, duplicated, empty or (with ``validate``) unreadable file or folder.
+        For a root without category folders or with two differing only by case; with ``errors="raise"``
+        for any malformed, duplicated, empty or (with ``validate``) unreadable, truncated or corrupt file
+        or folder; with ``errors="report"`` if not a single image is usable.
+
+    Examples
+    --------
+    >>> ds = load_savarese("3Dcategories", errors="report")  # doctest: +SKIP
+    >>> for problem in ds.problems:  # doctest: +SKIP
+    ...     print(problem.path, problem.message)
     """
     root = Path(root)
+    problems = _Problems(errors)
     if not root.is_dir():
         raise FileNotFoundError(f"Savarese dataset folder does not exist: {root}")
     categories = sorted(p for p in root.iterdir() if p.is_dir() and _visible(p))
@@ -351,19 +449,30 @@ def load_savarese(
     for cat_dir in categories:
         inst_dirs = sorted(p for p in cat_dir.iterdir() if p.is_dir() and _visible(p))
         if not inst_dirs:
-            raise ValueError(f"empty category folder (no instance folders): {cat_dir}")
-        ids: list[int] = []
+            problems(cat_dir, "category folder", "empty category folder (no instance folders)")
+            continue
+        found: dict[int, list[tuple[Path, list[dict]]]] = {}
         for inst_dir in inst_dirs:
-            inst_rows = _scan_instance(root, cat_dir.name, inst_dir)
-            inst = inst_rows[0]["instance"]
-            if inst in ids:
-                raise ValueError(
-                    f"instance {inst + 1} of {cat_dir.name} appears in two folders in {cat_dir} "
-                    f"(e.g. {inst_dir.name})"
+            inst_rows = _scan_instance(root, cat_dir.name, inst_dir, problems)
+            if inst_rows is not None:
+                found.setdefault(inst_rows[0]["instance"], []).append((inst_dir, inst_rows))
+        for inst, folders in sorted(found.items()):
+            if len(folders) > 1:
+                names = " and ".join(d.name for d, _ in folders)
+                problems(
+                    folders[1][0],
+                    "instance folder",
+                    f"instance {inst + 1} of {cat_dir.name} appears in two folders: {names} "
+                    "(neither is used)",
                 )
-            ids.append(inst)
-            rows.extend(inst_rows)
-        instances[cat_dir.name] = ids
+                continue
+            rows.extend(folders[0][1])
+            instances.setdefault(cat_dir.name, []).append(inst)
+    if not rows:
+        raise ValueError(
+            f"no usable image in Savarese dataset folder {root}: {len(problems.found)} problem(s), "
+            f"the first: {problems.found[0]}"
+        )
     labels = assign_splits(split_seed, instances, proportions)
     index = pd.DataFrame(rows)
     index["split"] = [
@@ -373,11 +482,16 @@ def load_savarese(
         index[col] = -1
     index = index.loc[:, list(INDEX_COLUMNS)]
     if validate:
-        index = _validate(root, index, progress)
+        index = _validate(root, index, problems, progress)
+        if index.empty:
+            raise ValueError(
+                f"no usable image in Savarese dataset folder {root}: all {len(problems.found)} "
+                f"views have problems, the first: {problems.found[0]}"
+            )
     meta = {
         "source": "Savarese et al. 3D Object Category dataset",
         "split_seed": int(split_seed),
         "split_proportions": [float(p) for p in proportions],
         "validated": bool(validate),
     }
-    return MultiviewDataset(root, index, SAVARESE_GRID, "savarese", meta)
+    return MultiviewDataset(root, index, SAVARESE_GRID, "savarese", meta, tuple(problems.found))

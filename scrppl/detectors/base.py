@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Self
 
 import numpy as np
 
-from scrppl._io import atomic_path
+from scrppl._io import CorruptFileError, atomic_path, read_npz
 
 if TYPE_CHECKING:  # pragma: no cover
     from scrppl.datasets.core import MultiviewDataset
@@ -56,6 +56,8 @@ __all__ = [
 
 #: Version of the saved-detector file format (see the module docstring).
 FORMAT_VERSION = 1
+#: How a corrupt detector file is regenerated (``scrppl detect`` retrains a detector it cannot read).
+_RETRAIN = "rerun `scrppl detect` to retrain it"
 #: Azimuth bins of the "canonical" training views: frontal and its two 45-degree neighbours.
 CANONICAL_AZIMUTHS = (0, 1, 7)
 
@@ -110,15 +112,12 @@ def as_rgb_image(image: np.ndarray | str | Path) -> np.ndarray:
         If a path does not exist.
     """
     if isinstance(image, str | Path):
-        import cv2
+        from scrppl.datasets.images import read_image
 
         path = Path(image)
         if not path.exists():
             raise FileNotFoundError(f"image file not found: {path}")
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise ValueError(f"unreadable image file (not a decodable image): {path}")
-        return bgr[:, :, ::-1].copy()
+        return read_image(path)[:, :, ::-1].copy()  # truncated files are refused, naming the file
     arr = np.asarray(image)
     if arr.ndim == 2:
         arr = np.repeat(arr[:, :, None], 3, axis=2)
@@ -449,21 +448,24 @@ class Detector(abc.ABC):
 
 def _read_npz(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"detector file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError) as err:
-        raise ValueError(f"not a readable detector file {path}: {err}") from err
+    arrays = read_npz(path, "detector file", remedy=_RETRAIN)
     if "meta" not in arrays:
-        raise ValueError(f"not a scrppl detector file (no 'meta' entry): {path}")
+        raise CorruptFileError(
+            path, "detector file", "not a scrppl detector (no 'meta' entry)", _RETRAIN
+        )
     try:
         meta = json.loads(str(arrays.pop("meta")))
     except json.JSONDecodeError as err:
-        raise ValueError(f"malformed detector meta in {path}: {err}") from err
-    if meta.get("format") != "scrppl-detector" or "family" not in meta or "target" not in meta:
-        raise ValueError(f"not a scrppl detector file: {path}")
+        raise CorruptFileError(
+            path, "detector file", f"malformed detector meta: {err}", _RETRAIN
+        ) from err
+    if (
+        not isinstance(meta, dict)
+        or meta.get("format") != "scrppl-detector"
+        or "family" not in meta
+        or "target" not in meta
+    ):
+        raise CorruptFileError(path, "detector file", "not a scrppl detector", _RETRAIN)
     if int(meta.get("format_version", -1)) > FORMAT_VERSION:
         raise ValueError(
             f"{path} uses detector format version {meta['format_version']}, newer than this "
