@@ -140,6 +140,24 @@ def test_train_detectors_saves_and_reloads(toy, trained):
         train_detectors(toy, ["sift"], ["dog"], progress=False)
 
 
+def test_a_corrupt_saved_detector_is_retrained(toy, tmp_path):
+    """A truncated detectors/<family>-<target>.npz is an error naming it on load, and training replaces it."""
+    from scrppl._io import CorruptFileError
+    from scrppl.detectors import load_detector
+
+    first = train_detectors(toy, ["sift"], ["cat"], seed=0, out_dir=tmp_path, progress=False)
+    path = detector_path(tmp_path, "sift", "cat")
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(CorruptFileError, match="rerun `scrppl detect`") as err:
+        load_detector(path)
+    assert str(path) in str(err.value) and "detector file" in str(err.value)
+    again = train_detectors(toy, ["sift"], ["cat"], seed=0, out_dir=tmp_path, progress=False)
+    row = toy.row("cat", 2, 1, 0)
+    img, box = toy.load_image(row), toy.bbox(row)
+    assert again["sift"]["cat"].score(img, box) == first["sift"]["cat"].score(img, box)
+    assert load_detector(path).target == "cat"  # the file is whole again
+
+
 # -- the response table -----------------------------------------------------------------------------
 def test_score_dataset_writes_valid_table(toy, trained, tmp_path):
     _, dets = trained

@@ -16,6 +16,10 @@ every trained detector and every image of a :class:`~scrppl.datasets.core.Multiv
   table's ``detectors`` attribute) is returned as it is.
 * **Parallel.** With ``workers > 1`` chunks are scored in that many spawned processes (each single-threaded
   for BLAS/OpenCV); the main process collects results and checkpoints.
+* **On a cluster.** With a Dask ``executor`` (:func:`scrppl.parallel.executor`) every instance x
+  feature group (the detectors sharing ``prepare``: one family, or SIFT and bag-of-features together) is
+  one task; the detectors are sent to each worker once. An instance counts as finished, and is
+  checkpointed, when all its groups are; the numbers are those of a run in process.
 
 Views an instance lacks stay NaN; a ``(detector, target)`` pair absent from ``detectors`` stays NaN too.
 """
@@ -38,6 +42,7 @@ from scrppl.responses import empty_response_table, save_response_table, validate
 if TYPE_CHECKING:  # pragma: no cover
     from scrppl.datasets.core import MultiviewDataset
     from scrppl.detectors.base import Detector
+    from scrppl.parallel import Executor
 
 __all__ = ["score_dataset", "partial_path", "score_chunk", "response_table_for"]
 
@@ -197,6 +202,42 @@ def _run_parallel(
                 os.environ[k] = v
 
 
+def _group_task(
+    task: tuple[Chunk, int],
+    dataset: MultiviewDataset,
+    groups: list[tuple[Detector, list]],
+    shape: tuple[int, int],
+) -> tuple[np.ndarray, dict[str, float]]:
+    """One cluster task: the scores of feature group ``g`` on every view of one instance."""
+    chunk, g = task
+    scores, timing = score_chunk(dataset, [groups[g]], chunk, shape)
+    return scores, timing
+
+
+def _run_cluster(
+    ex: Executor,
+    dataset: MultiviewDataset,
+    detectors: Mapping,
+    shape: tuple[int, int],
+    todo: list[Chunk],
+) -> Iterable[tuple[Chunk, np.ndarray, dict[str, float]]]:
+    """Score ``todo`` on a cluster, one task per chunk x feature group; yield finished chunks."""
+    groups = _groups(detectors)
+    tasks = [(chunk, g) for chunk in todo for g in range(len(groups))]
+    pending: dict[Chunk, list] = {}
+    for i, (scores, timing) in ex.as_completed(_group_task, tasks, dataset, groups, shape):
+        chunk, g = tasks[i]
+        parts = pending.setdefault(chunk, [np.full_like(scores, np.nan), {}, 0])
+        for fi, ti, _ in groups[g][1]:
+            parts[0][fi, ti] = scores[fi, ti]
+        for k, v in timing.items():
+            parts[1][k] = parts[1].get(k, 0.0) + v
+        parts[2] += 1
+        if parts[2] == len(groups):
+            del pending[chunk]
+            yield chunk, parts[0], parts[1]
+
+
 # -- the table ---------------------------------------------------------------------------------------
 def _compatible(old: xr.Dataset, new: xr.Dataset) -> bool:
     for name in ("detector", "target", "category", "instance", "azimuth", "elevation", "scale"):
@@ -237,6 +278,7 @@ def score_dataset(
     on_chunk: Callable[[Chunk, dict[str, float]], None] | None = None,
     overwrite: bool = False,
     checkpoint_seconds: float = 30.0,
+    executor: Executor | None = None,
 ) -> xr.Dataset:
     """Score every image of ``dataset`` with every detector: the response table.
 
@@ -262,6 +304,9 @@ def score_dataset(
     checkpoint_seconds
         Write the partial table at most this often (0: after every chunk); it is also written when the
         run is interrupted by an exception or Ctrl-C, so only a hard kill loses up to this much work.
+    executor
+        A Dask executor (:func:`scrppl.parallel.executor`) to score on a cluster instead (``workers``
+        is then ignored); ``None`` or the in-process executor scores here.
 
     Returns
     -------
@@ -334,7 +379,9 @@ def score_dataset(
     score = table["score"].values
 
     def results() -> Iterable[tuple[Chunk, np.ndarray, dict[str, float]]]:
-        if workers > 1 and len(todo) > 1:
+        if executor is not None and executor.distributed and todo:
+            yield from _run_cluster(executor, dataset, detectors, shape, todo)
+        elif workers > 1 and len(todo) > 1:
             yield from _run_parallel(dataset, detectors, shape, todo, min(workers, len(todo)))
         else:
             groups = _groups(detectors)

@@ -29,6 +29,7 @@ from scrppl.detectors.train import DEFAULT_MAX_NEGATIVES, train_detectors
 
 if TYPE_CHECKING:
     from scrppl.datasets.core import MultiviewDataset
+    from scrppl.parallel import Executor
 
 __all__ = [
     "check_selection",
@@ -91,6 +92,7 @@ def run_detection(
     workers: int = 2,
     max_negatives: int | None = DEFAULT_MAX_NEGATIVES,
     progress: bool = True,
+    executor: Executor | None = None,
 ) -> DetectionStudy:
     """Train every family x target, score the whole dataset and write the quality report.
 
@@ -112,11 +114,14 @@ def run_detection(
     seed
         Seed of the training sets.
     workers
-        Processes used for scoring.
+        Processes used for scoring in process.
     max_negatives
         Negative training images per target.
     progress
         Show progress bars.
+    executor
+        A Dask executor (:func:`scrppl.parallel.executor`): train (one task per family x target) and score
+        (one task per instance x feature group) on a cluster, with the same results; ``None`` runs here.
 
     Returns
     -------
@@ -135,10 +140,16 @@ def run_detection(
         out_dir=out,
         progress=progress,
         max_negatives=max_negatives,
+        executor=executor,
     )
     t1 = time.perf_counter()
     table = score_dataset(
-        dataset, detectors, path=out / "responses.nc", progress=progress, workers=workers
+        dataset,
+        detectors,
+        path=out / "responses.nc",
+        progress=progress,
+        workers=workers,
+        executor=executor,
     )
     t2 = time.perf_counter()
     quality = quality_summary(table, "test")

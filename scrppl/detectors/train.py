@@ -5,6 +5,10 @@ Each trained detector is written to ``<out_dir>/detectors/<family>-<target>.npz`
 instead of retrained, so an interrupted run resumes where it stopped. The settings (training views, seed,
 split, number of negatives, hyperparameters) are recorded in ``<out_dir>/detectors/training.json``;
 a saved detector whose settings differ is retrained.
+
+With a Dask ``executor`` (:func:`scrppl.parallel.executor`) every family x target to train is one task on
+the cluster; each detector is saved here as its task finishes, so a run that stops resumes from the
+detectors already saved. Training depends only on the seed and the data, so the detectors are the same.
 """
 
 from __future__ import annotations
@@ -14,11 +18,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scrppl._io import atomic_path
+from scrppl._io import CorruptFileError, atomic_path
 from scrppl.detectors.base import Detector, detector_class, load_detector, training_images
 
 if TYPE_CHECKING:  # pragma: no cover
     from scrppl.datasets.core import MultiviewDataset
+    from scrppl.parallel import Executor
 
 __all__ = ["train_detectors", "detector_path", "DEFAULT_MAX_NEGATIVES"]
 
@@ -57,6 +62,7 @@ def train_detectors(
     split: str = "train",
     max_negatives: int | None = DEFAULT_MAX_NEGATIVES,
     hyperparameters: Mapping[str, Mapping[str, Any]] | None = None,
+    executor: Executor | None = None,
 ) -> dict[str, dict[str, Detector]]:
     """Train one detector per family and target on the ``split`` instances, saving each.
 
@@ -83,6 +89,9 @@ def train_detectors(
         class attribute ``uses_negatives`` is false) get none.
     hyperparameters
         ``{family: {name: value}}`` passed to the constructors.
+    executor
+        A Dask executor (:func:`scrppl.parallel.executor`) to train on a cluster, one task per family x
+        target; ``None`` or the in-process executor trains here.
 
     Returns
     -------
@@ -111,6 +120,8 @@ def train_detectors(
             recorded = {}
     out: dict[str, dict[str, Detector]] = {fam: {} for fam in families}
     bar = tqdm(total=len(families) * len(targets), desc="training", disable=not progress)
+    deferred: list[tuple[str, str]] = []  # (family, target) trained on the cluster
+    on_cluster = executor is not None and executor.distributed
     try:
         for target in targets:
             cache: dict[bool, tuple[list, list]] = {}
@@ -121,11 +132,17 @@ def train_detectors(
                 path = detector_path(out_dir, fam, target) if out_dir is not None else None
                 key = f"{fam}-{target}"
                 if path is not None and path.exists() and recorded.get(key) == wanted:
-                    det = load_detector(path)
-                    if det.family == fam and det.target == target:
+                    try:
+                        det = load_detector(path)
+                    except CorruptFileError:
+                        det = None  # truncated or corrupt: train it again (and overwrite it)
+                    if det is not None and det.family == fam and det.target == target:
                         out[fam][target] = det
                         bar.update(1)
                         continue
+                if on_cluster:
+                    deferred.append((fam, target))
+                    continue
                 needs_neg = bool(getattr(klass, "uses_negatives", True))
                 if needs_neg not in cache:
                     cache[needs_neg] = training_images(
@@ -146,6 +163,49 @@ def train_detectors(
                         tmp.write_text(json.dumps(recorded, indent=2, sort_keys=True))
                 out[fam][target] = det
                 bar.update(1)
+        tasks = (
+            executor.as_completed(
+                _train_task, deferred, dataset, views, seed, split, max_negatives, hyperparameters
+            )
+            if deferred
+            else ()
+        )
+        for i, det in tasks:
+            fam, target = deferred[i]
+            path = detector_path(out_dir, fam, target) if out_dir is not None else None
+            if path is not None:
+                det.save(path)
+                hp = dict(hyperparameters.get(fam, {}))
+                recorded[f"{fam}-{target}"] = _settings(fam, views, seed, split, max_negatives, hp)
+                with atomic_path(settings_path) as tmp:
+                    tmp.write_text(json.dumps(recorded, indent=2, sort_keys=True))
+            out[fam][target] = det
+            bar.update(1)
     finally:
         bar.close()
-    return out
+    # the order of a run in process (families, then targets), wherever each was trained
+    return {fam: {t: out[fam][t] for t in targets} for fam in families}
+
+
+def _train_task(
+    job: tuple[str, str],
+    dataset: MultiviewDataset,
+    views: str,
+    seed: int,
+    split: str,
+    max_negatives: int | None,
+    hyperparameters: Mapping[str, Mapping[str, Any]],
+) -> Detector:
+    """One cluster task of :func:`train_detectors`: train the ``family`` detector of ``target``."""
+    fam, target = job
+    klass = detector_class(fam)
+    needs_neg = bool(getattr(klass, "uses_negatives", True))
+    pos, neg = training_images(
+        dataset,
+        target,
+        split=split,
+        views=views,
+        max_negatives=max_negatives if needs_neg else 0,
+        seed=seed,
+    )
+    return klass(target, **dict(hyperparameters.get(fam, {}))).fit(seed, pos, neg, progress=False)
