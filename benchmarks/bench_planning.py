@@ -45,6 +45,8 @@ from scrppl.sim import Trials, run_trials  # noqa: E402
 
 A, E, S = 8, 1, 1
 M = 256
+#: The paper's planner with M samples per decision (eq. 5).
+SAMPLED = P.PlannerConfig("sampled", n_samples=M)
 RESULTS = Path(__file__).resolve().parent / "results" / "planning.json"
 #: Results are only recorded when the 1-minute load average is below this at the start.
 QUIET_LOAD = 0.7
@@ -128,7 +130,7 @@ def decision_latency(n_calls: int = 500) -> float:
     model, key, belief, visited, avail, current = decision_inputs()
 
     def decide():
-        return P.choose_view(key, model, belief, current, visited, avail, n_samples=M)[0]
+        return P.choose_view(key, model, belief, current, visited, avail, SAMPLED)[0]
 
     decide().block_until_ready()
     latency = []
@@ -195,7 +197,7 @@ def main() -> int:
 
     # -- one decision: the public, compiled choose_view with every input an argument ----------------
     def decide():
-        return P.choose_view(key, model, belief, current, visited, avail, n_samples=M)[0]
+        return P.choose_view(key, model, belief, current, visited, avail, SAMPLED)[0]
 
     decide().block_until_ready()
     med, best = timeit(decide, repeat=15, inner=200)
@@ -234,7 +236,7 @@ def main() -> int:
         chunk = min(n, 2048)
 
         def run(trials=trials, chunk=chunk):
-            rec = run_trials(key, model, trials, planner="sampled", n_samples=M, chunk_size=chunk)
+            rec = run_trials(key, model, trials, SAMPLED, chunk_size=chunk)
             return rec.log_belief
 
         t0 = time.perf_counter()
@@ -254,8 +256,8 @@ def main() -> int:
     trials = make_trials(3, 160)
 
     def paper():
-        a = run_trials(key, model, trials, planner="sampled", n_samples=M, chunk_size=160)
-        b = run_trials(key, model, trials, planner="random", chunk_size=160)
+        a = run_trials(key, model, trials, SAMPLED, chunk_size=160)
+        b = run_trials(key, model, trials, P.PlannerConfig("random"), chunk_size=160)
         return a.log_belief, b.log_belief
 
     jax.block_until_ready(paper())

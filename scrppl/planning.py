@@ -23,6 +23,9 @@ unavailable (missing images) are never candidates. An optional ``motion_cost`` (
 travelled, :func:`scrppl.views.angular_distance`) is added to the expected entropy.
 
 Every planner decides by :func:`select_view`: the valid candidate of least expected entropy plus cost.
+The settings -- planner, objective, candidate mode, ``M``, quadrature order, motion cost -- travel as one
+:class:`PlannerConfig`, checked once where it enters (:func:`check_planner_config`), to
+:func:`choose_view`, the trial runner (:func:`scrppl.sim.run_trials`), the experiment and the extensions.
 
 The module reads in the paper's order: candidate sets, the posterior entropy after a response
 (:func:`posterior_entropy`), the three estimates of its expectation (:func:`sampled_expected_entropy`
@@ -56,8 +59,10 @@ from scrppl.views import angular_distance, check_mask_shape, check_view_array
 
 __all__ = [
     "PLANNERS",
+    "ENTROPY_PLANNERS",
     "MODES",
     "PlannerConfig",
+    "DEFAULT_PLANNER",
     "candidate_views",
     "random_unseen_view",
     "posterior_entropy",
@@ -66,13 +71,18 @@ __all__ = [
     "plug_in_expected_entropy",
     "candidate_mixtures",
     "expected_entropies",
+    "mixture_expected_entropies",
+    "travel_cost",
     "select_view",
     "choose_view",
+    "check_planner_config",
     "check_planner_inputs",
 ]
 
 #: Planner names accepted by :func:`choose_view`.
 PLANNERS = ("random", "sampled", "quadrature", "plug_in")
+#: Planners that score candidates by an expected entropy (all but ``"random"``).
+ENTROPY_PLANNERS = ("sampled", "quadrature", "plug_in")
 #: Candidate-set modes.
 MODES = ("azimuth", "all")
 
@@ -106,6 +116,85 @@ class PlannerConfig(NamedTuple):
     n_samples: int = 256
     order: int = 32
     motion_cost: float = 0.0
+
+
+#: The paper's planner (eq. 5) with ``M = 256`` samples: the default of every function that plans.
+DEFAULT_PLANNER = PlannerConfig()
+
+
+def check_planner_config(
+    config: PlannerConfig, planners: tuple[str, ...] = PLANNERS
+) -> PlannerConfig:
+    """Check a :class:`PlannerConfig` where it enters; return it with plain ``int``/``float`` fields.
+
+    Raises ``ValueError`` naming the field: ``planner`` not in ``planners`` (default :data:`PLANNERS`; a
+    function that cannot run every planner passes its own), ``objective`` not in
+    :data:`scrppl.belief.OBJECTIVES`, ``mode`` not in :data:`MODES`, ``n_samples`` or ``order`` not a
+    positive integer, ``motion_cost`` negative or not finite (checked when concrete: a traced cost, inside
+    a compiled trial, is checked where the trial runner is called).
+    """
+    if not isinstance(config, PlannerConfig):
+        raise ValueError(f"expected a scrppl.planning.PlannerConfig, got {type(config).__name__}")
+    if config.planner not in planners:
+        raise ValueError(
+            f"PlannerConfig.planner: unknown planner {config.planner!r}; expected one of {planners}"
+        )
+    if config.objective not in OBJECTIVES:
+        raise ValueError(
+            f"PlannerConfig.objective: unknown objective {config.objective!r}; expected one of {OBJECTIVES}"
+        )
+    if config.mode not in MODES:
+        raise ValueError(
+            f"PlannerConfig.mode: unknown candidate mode {config.mode!r}; expected one of {MODES}"
+        )
+    for field in ("n_samples", "order"):
+        value = getattr(config, field)
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"PlannerConfig.{field} must be a positive integer, got {value!r}")
+    cost = config.motion_cost
+    if is_concrete(cost):
+        try:
+            value = float(cost) if np.ndim(cost) == 0 else math.nan
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(
+                f"PlannerConfig.motion_cost must be a finite number >= 0 (nats per azimuth bin), got {cost!r}"
+            )
+        cost = value
+    return config._replace(
+        n_samples=int(config.n_samples), order=int(config.order), motion_cost=cost
+    )
+
+
+def _compiled_part(config: PlannerConfig) -> PlannerConfig:
+    """The settings compiled into the planner: ``config`` without its motion cost (passed as a value)."""
+    return config._replace(motion_cost=0.0)
+
+
+#: Configs already checked, with their compiled part: a decision in a loop checks its config once.
+_CHECKED: dict = {}
+
+
+def _checked(config, planners: tuple[str, ...] = PLANNERS) -> tuple[PlannerConfig, PlannerConfig]:
+    """:func:`check_planner_config` and :func:`_compiled_part`, remembered for hashable configs.
+
+    The field types are part of the key (``True == 1``, but ``n_samples=True`` is refused). A config
+    holding a traced motion cost is not hashable and is checked every time (only while tracing).
+    """
+    try:
+        fields = (type(config.n_samples), type(config.order), type(config.motion_cost))
+        return _CHECKED[config, planners, fields]
+    except (AttributeError, KeyError, TypeError):
+        pass
+    checked = check_planner_config(config, planners)
+    out = (checked, _compiled_part(checked))
+    try:
+        if len(_CHECKED) < 1024:
+            _CHECKED[config, planners, fields] = out
+    except TypeError:  # a traced motion cost
+        pass
+    return out
 
 
 def _check_objective(objective: str) -> None:
@@ -396,10 +485,7 @@ def expected_entropies(
     model: ResponseModel,
     belief,
     views,
-    planner: str = "sampled",
-    objective: str = "joint",
-    n_samples: int = 256,
-    order: int = 32,
+    config: PlannerConfig = DEFAULT_PLANNER,
 ) -> jax.Array:
     """Expected posterior entropy (nats) of each candidate view, shape ``(C,)``.
 
@@ -417,35 +503,55 @@ def expected_entropies(
         A :class:`~scrppl.belief.NaiveBayesBelief` or :class:`~scrppl.belief.InstanceBelief`.
     views
         Candidate robot views ``(phi, e, s)``, integer ``(C, 3)``.
-    planner
-        ``"sampled"``, ``"quadrature"`` or ``"plug_in"``.
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    n_samples
-        ``M`` for the sampled planner.
-    order
-        Gauss-Hermite order for the quadrature planner.
+    config
+        The planner (``"sampled"``, ``"quadrature"`` or ``"plug_in"``), the objective, ``M``
+        (``n_samples``, sampled) and the Gauss-Hermite ``order`` (quadrature); ``mode`` and
+        ``motion_cost`` are not used here.
     """
+    _, compiled = _checked(config, ENTROPY_PLANNERS)
     check_planner_inputs(model, belief, views=views)
-    return _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
+    return _expected_entropies(key, model, belief, views, compiled)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
-def _expected_entropies(key, model, belief, views, planner, objective, n_samples, order):
+@partial(jax.jit, static_argnames=("config",))
+def _expected_entropies(key, model, belief, views, config: PlannerConfig):
     """:func:`expected_entropies` without the input checks (compiled)."""
+    return mixture_expected_entropies(key, candidate_mixtures(model, belief, views), config)
+
+
+def mixture_expected_entropies(key, mixtures: Mixture, config: PlannerConfig) -> jax.Array:
+    """Expected posterior entropy of each of a batch of predictive mixtures (arrays ``(C, N, O, A)``).
+
+    The one place where ``config.planner`` selects the estimate: :func:`sampled_expected_entropy` (by
+    the CPU kernel, the same draws for every mixture), :func:`quadrature_expected_entropy` or
+    :func:`plug_in_expected_entropy`. The mixtures must share their weights, as the candidates of one
+    belief do (:func:`candidate_mixtures`): the sampled planner draws the states once, from the first.
+    Traceable, no input checks (the callers check).
+    """
+    objective = config.objective
     _check_objective(objective)
-    mixtures = candidate_mixtures(model, belief, views)
-    if planner == "sampled":
+    if config.planner == "sampled":
         # the predictive weights are the belief over (n, o, theta): the same for every candidate
-        u, eps = _draws(key, n_samples, mixtures.mean.dtype)
+        u, eps = _draws(key, config.n_samples, mixtures.mean.dtype)
         lw = mixtures.log_weight[0]
         return _sampled_entropies(u, eps, lw, mixtures.mean, mixtures.var, objective)
-    if planner == "quadrature":
-        return jax.vmap(lambda m: quadrature_expected_entropy(m, objective, order))(mixtures)
-    if planner == "plug_in":
+    if config.planner == "quadrature":
+        return jax.vmap(lambda m: quadrature_expected_entropy(m, objective, config.order))(mixtures)
+    if config.planner == "plug_in":
         return jax.vmap(lambda m: plug_in_expected_entropy(m, objective))(mixtures)
     raise ValueError(
-        f"unknown entropy planner {planner!r}; expected 'sampled', 'quadrature' or 'plug_in'"
+        f"unknown entropy planner {config.planner!r}; expected one of {ENTROPY_PLANNERS}"
+    )
+
+
+def travel_cost(views, current, motion_cost, n_azimuths: int) -> jax.Array:
+    """Motion cost of each candidate, ``motion_cost * angular_distance(phi_V, phi)``, shape ``(C,)``.
+
+    ``motion_cost`` is in nats per azimuth bin travelled (:func:`scrppl.views.angular_distance`, on a
+    ring of ``n_azimuths`` bins), the cost term of :func:`select_view`.
+    """
+    return motion_cost * angular_distance(
+        jnp.asarray(views)[:, 0], jnp.asarray(current)[0], n_azimuths
     )
 
 
@@ -486,12 +592,8 @@ def choose_view(
     current,
     visited,
     available,
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
-    n_samples: int = 256,
-    order: int = 32,
-    motion_cost=0.0,
+    config: PlannerConfig = DEFAULT_PLANNER,
+    *,
     max_candidates: int | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Choose the next robot view.
@@ -502,25 +604,18 @@ def choose_view(
     Parameters
     ----------
     key
-        JAX PRNG key.
-    model
-        The response model.
-    belief
-        Current belief (either filter).
+        JAX PRNG key (the sampled planner's draws, or the random planner's choice).
+    model, belief
+        The response model and the current belief (either filter).
     current
         Current robot view ``(phi, e, s)``, integer ``(3,)``.
     visited, available
         Boolean ``(A, E, S)`` masks over robot views (see :func:`candidate_views`).
-    planner
-        One of :data:`PLANNERS`.
-    objective
-        One of :data:`scrppl.belief.OBJECTIVES`.
-    mode
-        One of :data:`MODES`.
-    n_samples, order
-        ``M`` for ``"sampled"``; Gauss-Hermite order for ``"quadrature"``.
-    motion_cost
-        Nats per azimuth bin travelled (``0`` disables).
+    config
+        How to plan (:class:`PlannerConfig`): the planner (:data:`PLANNERS`), the objective
+        (:data:`scrppl.belief.OBJECTIVES`), the candidate ``mode`` (:data:`MODES`), ``M`` for
+        ``"sampled"``, the Gauss-Hermite order for ``"quadrature"`` and the motion cost in nats per
+        azimuth bin travelled (``0`` disables). Checked by :func:`check_planner_config`.
     max_candidates
         An upper bound on the number of valid candidates, known when tracing (e.g. ``C - k`` after
         ``k`` views): only that many are evaluated. The result is the same as without it, as long as
@@ -537,50 +632,21 @@ def choose_view(
     """
     # values here, once per call; the shapes of the belief and the masks (known while tracing) are
     # checked when the compiled function is traced, which costs nothing on later calls
+    config, compiled = _checked(config)
     check_response_model(model)
     _check_views(model.mu.shape[2:5], current, "current view", ndim=1)
-    return _choose_view(
-        key,
-        model,
-        belief,
-        current,
-        visited,
-        available,
-        planner=planner,
-        objective=objective,
-        mode=mode,
-        n_samples=n_samples,
-        order=order,
-        motion_cost=motion_cost,
-        max_candidates=max_candidates,
-    )
+    args = (key, model, belief, current, visited, available, config.motion_cost)
+    return _choose_view(*args, config=compiled, max_candidates=max_candidates)
 
 
-@partial(
-    jax.jit,
-    static_argnames=("planner", "objective", "mode", "n_samples", "order", "max_candidates"),
-)
+@partial(jax.jit, static_argnames=("config", "max_candidates"))
 def _choose_view(
-    key,
-    model,
-    belief,
-    current,
-    visited,
-    available,
-    planner,
-    objective,
-    mode,
-    n_samples,
-    order,
-    motion_cost,
-    max_candidates,
+    key, model, belief, current, visited, available, motion_cost, config, max_candidates
 ):
-    """:func:`choose_view` without the input checks (compiled)."""
+    """:func:`choose_view` without the input checks (compiled; the motion cost is a traced value)."""
     check_planner_inputs(model, belief, current=current, visited=visited, available=available)
-    if planner not in PLANNERS:
-        raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
-    views, valid = candidate_views(current, visited, available, mode)
-    if planner == "random":
+    views, valid = candidate_views(current, visited, available, config.mode)
+    if config.planner == "random":
         idx, found = random_unseen_view(key, valid)
         return views[idx], found, jnp.where(valid, 0.0, jnp.inf)
     n_c = views.shape[0]
@@ -589,14 +655,11 @@ def _choose_view(
         k = max(int(max_candidates), 1)
         sel = jnp.nonzero(valid, size=k, fill_value=0)[0]
         sel_valid = valid[sel] & (jnp.arange(k) < valid.sum())
-        sub = _expected_entropies(
-            key, model, belief, views[sel], planner, objective, n_samples, order
-        )
+        sub = _expected_entropies(key, model, belief, views[sel], config)
         sub = jnp.where(sel_valid, sub, jnp.inf)
         h = jnp.full(n_c, jnp.inf, sub.dtype).at[sel].min(sub)
     else:
-        h = _expected_entropies(key, model, belief, views, planner, objective, n_samples, order)
-    n_a = model.mu.shape[2]
-    cost = motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
+        h = _expected_entropies(key, model, belief, views, config)
+    cost = travel_cost(views, current, motion_cost, model.mu.shape[2])
     idx, found, scores = select_view(h, cost, valid)
     return views[idx], found, scores

@@ -10,7 +10,7 @@ in one line::
 
     run = sp.open_results()                 # $SCRPPL_RESULTS, else ./results
     table = run.responses()                 # the response table (xarray.Dataset)
-    model, info = run.model("hierarchical", "dpm", "car")
+    m = run.model("hierarchical", "dpm", "car")   # m.response_model, m.transform, m.grid
     trials = run.trials()                   # the 160-trial experiment
 
 ``scrppl reproduce`` writes ``run.json`` (profile, seed, dataset folder) beside its outputs; a folder
@@ -25,6 +25,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from scrppl._io import CorruptFileError, read_json
 
 __all__ = ["RESULTS_ENV", "RUN_FILE", "Results", "open_results", "write_run_info"]
 
@@ -94,11 +96,13 @@ class Results:
         return self.root / "figures"
 
     # -- stages --------------------------------------------------------------------------------------
-    def dataset(self, root: str | Path | None = None):
+    def dataset(self, root: str | Path | None = None, *, errors: str = "report"):
         """The multiview dataset the run was computed on (a :class:`~scrppl.datasets.MultiviewDataset`).
 
         The synthetic cache or a copy of the Savarese dataset (:func:`~scrppl.datasets.open_dataset`;
-        a Savarese tree is split with the run's seed, as ``scrppl detect`` split it).
+        a Savarese tree is split with the run's seed, as ``scrppl detect`` split it, and its bad files
+        are skipped and listed in ``problems``, as the command line does by default; ``errors="raise"``
+        stops at the first).
         """
         from scrppl.datasets import open_dataset
 
@@ -108,7 +112,7 @@ class Results:
                 f"{self.root} has no {RUN_FILE} naming its dataset folder: pass it, "
                 "e.g. run.dataset('path/to/dataset')"
             )
-        return open_dataset(where, split_seed=self.seed or 0, progress=False)
+        return open_dataset(where, split_seed=self.seed or 0, progress=False, errors=errors)
 
     def responses(self):
         """The response table (``responses.nc``), see :mod:`scrppl.responses`."""
@@ -124,10 +128,17 @@ class Results:
 
     def detector_quality(self) -> dict[str, Any]:
         """Held-out average precision and azimuth dependence per detector (``detectors/quality.json``)."""
-        return json.loads(self.path("detectors", "quality.json").read_text())
+        return read_json(
+            self.path("detectors", "quality.json"),
+            "detector quality report",
+            remedy="rerun `scrppl detect` to regenerate it",
+        )
 
     def model(self, kind: str, detector: str, target: str, n_draws: int | None = None):
-        """A fitted viewpoint model as ``(ResponseModel, info)``; see :func:`scrppl.models.load_response_model`."""
+        """A fitted viewpoint model: :func:`scrppl.models.load_response_model` on this run's ``models/``.
+
+        A :class:`~scrppl.models.io.ViewpointModel`: ``.response_model`` with its transform and grid.
+        """
         from scrppl.models import load_response_model
 
         return load_response_model(self.path("models"), kind, detector, target, n_draws=n_draws)
@@ -140,7 +151,11 @@ class Results:
 
     def diagnostics(self) -> dict[str, Any]:
         """The MCMC diagnostics of every hierarchical fit (``models/diagnostics.json``)."""
-        return json.loads(self.path("models", "diagnostics.json").read_text())
+        return read_json(
+            self.path("models", "diagnostics.json"),
+            "MCMC diagnostics",
+            remedy="rerun `scrppl fit --force` to regenerate it",
+        )
 
     def heldout(self):
         """The held-out comparison of the viewpoint models (``models/heldout.csv``) as a DataFrame."""
@@ -156,7 +171,11 @@ class Results:
 
     def simulate_summary(self) -> dict[str, Any]:
         """The headline numbers of the experiment (``simulate-summary.json``)."""
-        return json.loads(self.path("simulate-summary.json").read_text())
+        return read_json(
+            self.path("simulate-summary.json"),
+            "experiment summary",
+            remedy="rerun `scrppl simulate` to regenerate it",
+        )
 
     # -- description ---------------------------------------------------------------------------------
     def describe(self) -> str:
@@ -200,12 +219,14 @@ def open_results(path: str | Path | None = None) -> Results:
     info_path = root / RUN_FILE
     if not info_path.exists():
         return Results(root=root)
-    try:
-        info = json.loads(info_path.read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(
-            f"{info_path} is not valid JSON ({err}); rerun `scrppl reproduce`"
-        ) from err
+    info = read_json(info_path, "run description", remedy="rerun `scrppl reproduce` to rewrite it")
+    if not isinstance(info, dict):
+        raise CorruptFileError(
+            info_path,
+            "run description",
+            "not a JSON object",
+            remedy="rerun `scrppl reproduce` to rewrite it",
+        )
     ds = info.get("dataset_root")
     return Results(
         root=root,

@@ -45,13 +45,13 @@ def test_one_detector_without_cost_is_the_single_detector_planner(rng, key, kind
     available = np.ones((4, 2, 1), bool)
     available[2, 0, 0] = False
     current = jnp.asarray([1, 0, 0])
+    config = P.PlannerConfig(planner, "joint", "azimuth", 64, 16)
     want_view, want_found, want_scores = P.choose_view(
-        key, model, single, current, visited, available, planner, "joint", "azimuth", 64, 16
+        key, model, single, current, visited, available, config
     )
     view, det, found, scores = X.choose_view_and_detector(
-        key, (model,), fused, current, visited[None], available[None], None, 0.0, planner, "joint",
-        "azimuth", 64, 16,
-    )  # fmt: skip
+        key, (model,), fused, current, visited[None], available[None], config
+    )
     assert int(det) == 0 and bool(found) == bool(want_found)
     np.testing.assert_array_equal(view, want_view)
     np.testing.assert_allclose(scores[:, 0], want_scores, atol=2e-5)
@@ -123,10 +123,10 @@ def test_choice_with_costs_equals_brute_force(rng, key, kind):
                 h = brute_expected_entropy(models, kind, OBS, d, (phi, 0, 0))
                 dist = min(abs(phi - 1), 4 - abs(phi - 1))
                 want[phi, d] = h + 0.3 * costs[d] + 0.05 * dist
+    config = P.PlannerConfig("quadrature", "joint", "azimuth", 64, 48, 0.05)
     view, det, found, scores = X.choose_view_and_detector(
-        key, models, b, current, visited, available, costs, 0.3, "quadrature", "joint", "azimuth",
-        64, 48, 0.05,
-    )  # fmt: skip
+        key, models, b, current, visited, available, config, costs=costs, cost_weight=0.3
+    )
     np.testing.assert_allclose(scores, want, atol=3e-4)
     best = np.unravel_index(np.argmin(want), want.shape)
     assert bool(found) and (int(view[0]), int(det)) == best
@@ -134,8 +134,9 @@ def test_choice_with_costs_equals_brute_force(rng, key, kind):
     for cheap in (0, 1):
         c = np.where(np.arange(2) == cheap, 0.0, 100.0)
         _, det, _, _ = X.choose_view_and_detector(
-            key, models, b, current, visited, available, c, 1.0, "quadrature", "joint"
-        )
+            key, models, b, current, visited, available, P.PlannerConfig("quadrature"), costs=c,
+            cost_weight=1.0,
+        )  # fmt: skip
         assert int(det) == cheap
 
 
@@ -150,15 +151,23 @@ def test_random_choice_picks_valid_pairs_and_reports_exhaustion(rng, key):
     for k in range(5):
         view, det, found, _ = X.choose_view_and_detector(
             jax.random.fold_in(key, k), models, b, current, visited, np.ones((4, 2, 1), bool),
-            planner="random",
+            P.PlannerConfig("random"),
         )  # fmt: skip
         assert bool(found) and int(view[0]) == 2 and int(det) == 1
     _, _, found, scores = X.choose_view_and_detector(
         key, models, b, current, np.ones((2, 4, 2, 1), bool), np.ones((4, 2, 1), bool)
     )
     assert not bool(found) and np.isinf(np.asarray(scores)).all()
-    with pytest.raises(ValueError, match="unknown planner"):
-        X.choose_view_and_detector(key, models, b, current, visited, visited, planner="greedy")
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'greedy'"):
+        X.choose_view_and_detector(
+            key, models, b, current, visited, visited, P.PlannerConfig("greedy")
+        )
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'random'"):
+        X.detector_expected_entropies(
+            key, models, b, jnp.asarray([[0, 0, 0]]), P.PlannerConfig("random")
+        )
+    with pytest.raises(ValueError, match=r"costs must have shape \(2,\)"):
+        X.choose_view_and_detector(key, models, b, current, visited, visited, costs=[1.0])
 
 
 def test_detector_choice_checks_its_inputs(rng, key):

@@ -11,6 +11,7 @@ from scrppl import belief as B
 from scrppl import planning as P
 from scrppl.extensions import fusion as F
 from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig as PC
 
 
 def random_model(rng, n=2, o=2, a=4, e=2, s=1, tau=0.6, scale=1.5):
@@ -254,6 +255,8 @@ def test_fusion_checks_models_beliefs_and_views_where_they_enter(rng, key):
     three = jnp.asarray([[1, e, 0] for e in range(3)])
     with pytest.raises(ValueError, match="elevation index out of the view grid"):
         F.fused_expected_entropies(key, (m, m), nb, three)
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'plug_in'"):
+        F.fused_expected_entropy(key, (m, m), nb, 0, 0, 0, PC("plug_in"))
     with pytest.raises(ValueError, match="detector index d=2 out of range"):
         F.detector_mixture((m, m), nb, 2, 0)
 
@@ -319,7 +322,7 @@ def test_fused_quadrature_equals_brute_force_grid(rng, kind, objective):
     obs = observations(rng, 1, 2, 3, 1, 1)
     b = fuse(kind, models, obs)
     got = float(
-        F.fused_expected_entropy(None, models, b, 2, 0, 0, "quadrature", objective, order=24)
+        F.fused_expected_entropy(None, models, b, 2, 0, 0, PC("quadrature", objective, order=24))
     )
     want = brute_fused_expected_entropy(models, kind, obs, (2, 0, 0), objective)
     np.testing.assert_allclose(got, want, atol=2e-4)
@@ -335,7 +338,7 @@ def test_running_all_detectors_never_does_worse_than_one(rng, kind):
             mix = F.detector_mixture(models, b, d, *view)
             single = float(P.quadrature_expected_entropy(mix, "joint", 16))
             assert fused <= single + 1e-4, (view, d, fused, single)
-        all3 = float(F.fused_expected_entropy(None, models, b, *view, order=8))
+        all3 = float(F.fused_expected_entropy(None, models, b, *view, PC("quadrature", order=8)))
         assert all3 <= fused + 1e-3
 
 
@@ -351,7 +354,7 @@ def test_uninformative_second_detector_gives_the_single_detector_value(rng):
     models = (random_model(rng, n=2), constant_model())
     for kind in B.FILTERS:
         b = fuse(kind, models, observations(rng, 2, 2, 4, 2, 1))
-        both = float(F.fused_expected_entropy(None, models, b, 1, 1, 0, order=16))
+        both = float(F.fused_expected_entropy(None, models, b, 1, 1, 0, PC("quadrature", order=16)))
         mix = F.detector_mixture(models, b, 0, 1, 1, 0)
         one = float(P.quadrature_expected_entropy(mix, "joint", 32))
         np.testing.assert_allclose(both, one, atol=2e-4)
@@ -360,7 +363,7 @@ def test_uninformative_second_detector_gives_the_single_detector_value(rng):
 def test_sampled_fused_converges_to_quadrature(rng, key):
     models = (random_model(rng, n=2), random_model(rng, n=2))
     b = fuse("instance", models, observations(rng, 1, 2, 4, 2, 1))
-    exact = float(F.fused_expected_entropy(None, models, b, 2, 0, 0, "quadrature", order=24))
+    exact = float(F.fused_expected_entropy(None, models, b, 2, 0, 0, PC("quadrature", order=24)))
     f = F._sample_fused(jax.random.fold_in(key, 1), models, b, 2, 0, 0, 8192)
     h = np.asarray(F.fused_posterior_entropy(models, b, f, 2, 0, 0))
     # the sample's own mean is within 4 standard errors of the exact value
@@ -369,7 +372,10 @@ def test_sampled_fused_converges_to_quadrature(rng, key):
     for m in (32, 4096):
         keys = jax.random.split(jax.random.fold_in(key, m), 6)
         est = np.array(
-            [F.fused_expected_entropy(k, models, b, 2, 0, 0, "sampled", n_samples=m) for k in keys]
+            [
+                F.fused_expected_entropy(k, models, b, 2, 0, 0, PC("sampled", n_samples=m))
+                for k in keys
+            ]
         )
         assert np.all(np.abs(est - exact) < 5 * h.std() / np.sqrt(m) + 1e-4), (m, est, exact)
         errors[m] = float(np.sqrt(np.mean((est - exact) ** 2)))

@@ -131,7 +131,9 @@ def test_two_steps_never_do_worse_than_one_in_expectation(rng, kind):
         for objective in B.OBJECTIVES:
             two = np.asarray(L.two_step_expected_entropies(model, b, views, valid, objective, 12))
             one = np.asarray(
-                P.expected_entropies(None, model, b, views, "quadrature", objective, order=12)
+                P.expected_entropies(
+                    None, model, b, views, P.PlannerConfig("quadrature", objective, order=12)
+                )
             )
             v = np.asarray(valid)
             assert np.all(two[v] <= one[v] + 1e-4), (objective, two, one)
@@ -191,19 +193,28 @@ def test_choose_view_two_step_is_the_argmin_and_respects_masks(rng, key):
     available[3, 1, 0] = False
     current = jnp.asarray([0, 1, 0])
     view, found, scores = L.choose_view_two_step(
-        key, model, b, current, visited, available, "quadrature", "joint", "azimuth", 12
+        key, model, b, current, visited, available, P.PlannerConfig("quadrature", order=12)
     )
     scores = np.asarray(scores)
     assert bool(found)
     assert np.isinf(scores[[0, 3]]).all() and np.isfinite(scores[[1, 2]]).all()
     assert int(view[0]) == int(np.argmin(scores)) and int(view[1]) == 1
     # a large motion cost makes the nearest azimuths win
+    costly = P.PlannerConfig("sampled", n_samples=16, motion_cost=10.0)
     view, _, _ = L.choose_view_two_step(
-        key, model, b, current, visited, available, "sampled", "joint", "azimuth", 8, 16, 16, 10.0
+        key, model, b, current, visited, available, costly, n_outer=16
     )
     assert int(view[0]) == 1
-    with pytest.raises(ValueError, match="two-step planner"):
-        L.choose_view_two_step(key, model, b, current, visited, available, "plug_in")
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'plug_in'"):
+        L.choose_view_two_step(
+            key, model, b, current, visited, available, P.PlannerConfig("plug_in")
+        )
+    with pytest.raises(ValueError, match="PlannerConfig.n_samples"):
+        L.choose_view_two_step(
+            key, model, b, current, visited, available, costly._replace(n_samples=0)
+        )
+    with pytest.raises(ValueError, match="n_outer must be a positive integer"):
+        L.choose_view_two_step(key, model, b, current, visited, available, costly, n_outer=0)
 
 
 def test_lookahead_checks_its_inputs(rng, key):

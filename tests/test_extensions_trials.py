@@ -10,6 +10,7 @@ from scrppl import sim
 from scrppl.extensions import fusion as F
 from scrppl.extensions import trials as XT
 from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig
 from scrppl.responses import empty_response_table
 from scrppl.views import ViewGrid
 
@@ -97,17 +98,10 @@ def test_one_detector_reproduces_run_trials(table, key, policy, kind, planner):
     rng = np.random.default_rng(3)
     model = gaussian_model(1) if kind == "naive_bayes" else hierarchical_like(rng, 1)
     multi = XT.make_multi_trials(key, table, ["bof"], "car", 12)
-    rec = XT.run_multi_trials(
-        key, (model,), multi, policy=policy, filter=kind, planner=planner, n_samples=32
-    )
+    config = PlannerConfig(planner, n_samples=32)
+    rec = XT.run_multi_trials(key, (model,), multi, config, policy=policy, filter=kind)
     want = sim.run_trials(
-        key,
-        model,
-        XT.single_detector_trials(multi, 0),
-        filter=kind,
-        planner=planner,
-        n_samples=32,
-        chunk_size=16,
+        key, model, XT.single_detector_trials(multi, 0), config, filter=kind, chunk_size=16
     )
     np.testing.assert_array_equal(rec.views, want.views)
     np.testing.assert_array_equal(rec.observed, want.observed)
@@ -125,7 +119,13 @@ def test_records_replay_through_the_fused_filter(table, key, kind, policy):
     multi = XT.make_multi_trials(key, table, DETS, "car", 6)
     n_steps = 12 if policy == "choose" else 8
     rec = XT.run_multi_trials(
-        key, models, multi, policy=policy, filter=kind, n_samples=16, n_steps=n_steps, order=8
+        key,
+        models,
+        multi,
+        PlannerConfig(n_samples=16, order=8),
+        policy=policy,
+        filter=kind,
+        n_steps=n_steps,
     )
     assert rec.detectors.shape == (6, n_steps, 3)
     for t in range(6):
@@ -163,7 +163,7 @@ def test_fusing_two_informative_detectors_beats_either_alone(table, key):
         ("bof", models[1:], XT.MultiTrials(multi.responses[:, 1:], *multi[1:])),
         ("both", models, multi),
     ):
-        rec = XT.run_multi_trials(key, ms, tr, n_samples=32, n_steps=3)
+        rec = XT.run_multi_trials(key, ms, tr, PlannerConfig(n_samples=32), n_steps=3)
         p_true[name] = XT.multi_trial_metrics(rec, tr)["p_true"].mean(0)
     assert np.all(p_true["both"] > p_true["dpm"]) and np.all(p_true["both"] > p_true["bof"])
 

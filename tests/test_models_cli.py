@@ -39,9 +39,9 @@ def test_fit_command_writes_models_diagnostics_heldout_and_figures(out, capsys):
     assert "Held-out log predictive density" in printed
     for kind in ("gaussian", "hierarchical"):
         for tgt in ("c0", "c1"):
-            model, info = load_response_model(out / "models", kind, "dpm", tgt)
-            assert info["transform"] == "identity" and info["target"] == tgt
-            assert model.mu.shape[1:] == (2, 8, 1, 1)
+            loaded = load_response_model(out / "models", kind, "dpm", tgt)
+            assert loaded.transform == "identity" and loaded.target == tgt and loaded.kind == kind
+            assert loaded.response_model.mu.shape[1:] == (2, 8, 1, 1) and loaded.grid.n_azimuth == 8
     report = json.loads((out / "models" / "diagnostics.json").read_text())
     assert set(report) == {"thresholds", "dpm/c0", "dpm/c1"}
     assert {"rhat_max", "ess_bulk_min", "divergences", "ebfmi", "ok"} <= set(report["dpm/c0"])

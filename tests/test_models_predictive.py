@@ -14,7 +14,15 @@ from scipy.special import logsumexp
 from scrppl.models.data import make_view_data
 from scrppl.models.diagnostics import DiagnosticsWarning, diagnose, warn_if_failed
 from scrppl.models.evaluate import evaluate_models, heldout_scores
-from scrppl.models.io import load_response_model, model_path, save_gaussian, save_posterior
+from scrppl.models.io import (
+    MODEL_VERSION,
+    ViewpointModel,
+    is_current_version,
+    load_response_model,
+    model_path,
+    save_gaussian,
+    save_posterior,
+)
 from scrppl.models.predictive import to_response_model
 from scrppl.models.response import ResponseModel, log_prob, predictive_moments, sample
 
@@ -44,6 +52,7 @@ def _posterior(rng, chains=2, draws=50, n_neg=3):
         "transform": "identity",
         "n_neg_categories": n_neg,
         "grid": {"n_azimuth": A, "elevations": [0.0, 1.0], "scales": [1.0]},
+        "model_version": MODEL_VERSION,
     }
     tree.attrs.update(
         kind="hierarchical",
@@ -110,12 +119,18 @@ def test_sample_reproduces_predictive_moments(key, rng):
 def test_saved_and_reloaded_models_give_identical_log_prob(tmp_path, rng):
     tree, _ = _posterior(rng)
     save_posterior(model_path(tmp_path, "hierarchical", "dpm", "car"), tree)
-    loaded, info = load_response_model(tmp_path, "hierarchical", "dpm", "car")
-    assert info["transform"] == "identity" and info["kind"] == "hierarchical"
-    assert info["detector"] == "dpm" and info["target"] == "car" and info["grid"]["n_azimuth"] == A
+    loaded = load_response_model(tmp_path, "hierarchical", "dpm", "car")
+    assert isinstance(loaded, ViewpointModel)
+    assert loaded.transform == "identity" and loaded.kind == "hierarchical"
+    assert loaded.detector == "dpm" and loaded.target == "car" and loaded.grid.n_azimuth == A
+    assert loaded.grid_shape == (A, E, S) and loaded.n_draws == loaded.response_model.n_draws
     f = jnp.linspace(-2, 2, 7)
     before = log_prob(to_response_model(tree), f, 1, 3, 1, 0)
-    np.testing.assert_array_equal(np.asarray(log_prob(loaded, f, 1, 3, 1, 0)), np.asarray(before))
+    np.testing.assert_array_equal(
+        np.asarray(log_prob(loaded.response_model, f, 1, 3, 1, 0)), np.asarray(before)
+    )
+    # identity transform: scoring raw responses is scoring them as they are
+    np.testing.assert_array_equal(np.asarray(loaded.log_prob(f, 1, 3, 1, 0)), np.asarray(before))
 
     g = ResponseModel(
         jnp.asarray(rng.normal(size=(1, 2, A, E, S))),
@@ -128,11 +143,42 @@ def test_saved_and_reloaded_models_give_identical_log_prob(tmp_path, rng):
         np.ones((2, A, E, S), int),
         {"detector": "sift", "target": "car", "transform": "anscombe"},
     )
-    g2, ginfo = load_response_model(tmp_path, "gaussian", "sift", "car")
-    assert ginfo["transform"] == "anscombe"
+    g2 = load_response_model(tmp_path, "gaussian", "sift", "car")
+    assert g2.transform == "anscombe" and g2.diagnostics is None and g2.grid is None
     np.testing.assert_array_equal(
-        np.asarray(log_prob(g2, f, 0, 2, 0, 0)), np.asarray(log_prob(g, f, 0, 2, 0, 0))
+        np.asarray(log_prob(g2.response_model, f, 0, 2, 0, 0)),
+        np.asarray(log_prob(g, f, 0, 2, 0, 0)),
     )
+    # raw counts are put on the Anscombe scale 2 sqrt(x + 3/8) before they are scored
+    counts = np.array([0.0, 1.0, 4.0, 30.0])
+    np.testing.assert_allclose(g2.to_model_scale(counts), 2 * np.sqrt(counts + 3 / 8))
+    np.testing.assert_allclose(
+        np.asarray(g2.log_prob(counts, 0, 2)),
+        np.asarray(log_prob(g, jnp.asarray(2 * np.sqrt(counts + 3 / 8)), 0, 2, 0, 0)),
+        rtol=1e-6,
+    )
+    assert "anscombe" in repr(g2) and "gaussian sift/car" in repr(g2)
+
+
+def test_a_fit_of_another_model_version_is_refused(tmp_path, rng):
+    tree, _ = _posterior(rng)
+    meta = json.loads(tree.attrs["meta"])
+    meta["model_version"] = MODEL_VERSION - 1
+    tree.attrs["meta"] = json.dumps(meta)
+    save_posterior(model_path(tmp_path, "hierarchical", "dpm", "car"), tree)
+    assert not is_current_version(tree)
+    with pytest.raises(ValueError, match=r"hierarchical-dpm-car.nc was fitted by version 1.*refit"):
+        load_response_model(tmp_path, "hierarchical", "dpm", "car")
+
+
+def test_a_loaded_model_passed_where_a_response_model_belongs_says_what_to_pass(tmp_path, rng):
+    from scrppl import belief
+
+    tree, _ = _posterior(rng)
+    save_posterior(model_path(tmp_path, "hierarchical", "dpm", "car"), tree)
+    loaded = load_response_model(tmp_path, "hierarchical", "dpm", "car")
+    with pytest.raises(ValueError, match=r"got ViewpointModel: pass its .response_model"):
+        belief.naive_bayes_init(loaded)
 
 
 def test_loading_errors(tmp_path, rng):

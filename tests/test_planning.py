@@ -1,5 +1,7 @@
 """Planners: sampled expected entropy converges to the quadrature value, which matches SciPy integration."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +13,7 @@ from scrppl import _planning_kernel as K
 from scrppl import belief as B
 from scrppl import planning as P
 from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig as PC
 
 
 def random_model(rng, n=2, o=2, a=4, e=2, s=2, tau=0.5):
@@ -158,7 +161,7 @@ def test_expected_entropy_never_exceeds_current_entropy(rng, kind):
         logj = B.joint_log_belief(b)
         for objective in B.OBJECTIVES:
             current = float(B.objective_entropy(logj, objective))
-            h = P.expected_entropies(None, model, b, views, "quadrature", objective, order=16)
+            h = P.expected_entropies(None, model, b, views, PC("quadrature", objective, order=16))
             assert np.all(np.asarray(h) <= current + 1e-5), (objective, current, h)
 
 
@@ -220,7 +223,9 @@ def test_sampled_kernel_equals_entropy_of_the_sampled_responses(rng, key, kind):
         views = jnp.asarray([[phi, 0, phi % 2] for phi in range(8)])
         mixtures = P.candidate_mixtures(model, b, views)
         for objective in B.OBJECTIVES:
-            h = np.asarray(P.expected_entropies(key, model, b, views, "sampled", objective, 256))
+            h = np.asarray(
+                P.expected_entropies(key, model, b, views, PC("sampled", objective, n_samples=256))
+            )
             assert np.all(np.isfinite(h))
             f = jax.vmap(lambda m: K._sample_responses(key, m, 256))(mixtures)
             want = jax.vmap(lambda m, f, o=objective: P.posterior_entropy(m, f, o).mean())(
@@ -301,23 +306,23 @@ def test_choose_view_is_argmin_and_respects_masks_and_motion_cost(rng, key):
     available[6] = False
     current = jnp.array([0, 0, 0])
     view, found, scores = P.choose_view(
-        key, model, b, current, visited, available, planner="quadrature"
+        key, model, b, current, visited, available, PC("quadrature")
     )
     views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
-    h = np.array(P.expected_entropies(None, model, b, views, "quadrature"))
+    h = np.array(P.expected_entropies(None, model, b, views, PC("quadrature")))
     h[[0, 5, 6]] = np.inf
     assert bool(found) and int(view[0]) == int(np.argmin(h))
     np.testing.assert_allclose(np.asarray(scores), h, rtol=1e-5)
     # a large motion cost makes the nearest valid azimuth win (1 or 7, one bin away)
     view, _, _ = P.choose_view(
-        key, model, b, current, visited, available, planner="quadrature", motion_cost=100.0
+        key, model, b, current, visited, available, PC("quadrature", motion_cost=100.0)
     )
     assert int(view[0]) in (1, 7)
     # nothing left to see
     view, found, _ = P.choose_view(key, model, b, current, np.ones((8, 1, 1), bool), available)
     assert not bool(found)
     for planner in ("random", "sampled", "plug_in"):
-        view, found, _ = P.choose_view(key, model, b, current, visited, available, planner=planner)
+        view, found, _ = P.choose_view(key, model, b, current, visited, available, PC(planner))
         assert bool(found) and int(view[0]) not in (0, 5, 6)
 
 
@@ -325,8 +330,8 @@ def test_sampled_planner_agrees_with_quadrature_choice_for_large_m(rng, key):
     model = random_model(rng, a=8, e=1, s=1, n=1)
     b = observed_belief(rng, "naive_bayes", model, k=1)
     views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
-    exact = np.asarray(P.expected_entropies(None, model, b, views, "quadrature", order=48))
-    est = np.asarray(P.expected_entropies(key, model, b, views, "sampled", n_samples=8192))
+    exact = np.asarray(P.expected_entropies(None, model, b, views, PC("quadrature", order=48)))
+    est = np.asarray(P.expected_entropies(key, model, b, views, PC("sampled", n_samples=8192)))
     np.testing.assert_allclose(est, exact, atol=0.03)
 
 
@@ -351,12 +356,74 @@ def test_bad_planner_arguments(rng, key):
     model = random_model(rng)
     b = B.naive_bayes_init(model)
     m = np.ones((4, 2, 2), bool)
-    with pytest.raises(ValueError, match="unknown planner"):
-        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, planner="greedy")
-    with pytest.raises(ValueError, match="unknown candidate mode"):
-        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, mode="diagonal")
-    with pytest.raises(ValueError, match="unknown objective"):
-        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, objective="colour")
+    here = jnp.array([0, 0, 0])
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'greedy'"):
+        P.choose_view(key, model, b, here, m, m, PC("greedy"))
+    with pytest.raises(ValueError, match="PlannerConfig.mode: unknown candidate mode"):
+        P.choose_view(key, model, b, here, m, m, PC(mode="diagonal"))
+    with pytest.raises(ValueError, match="PlannerConfig.objective: unknown objective"):
+        P.choose_view(key, model, b, here, m, m, PC(objective="colour"))
+    # the random planner does not score candidates
+    with pytest.raises(ValueError, match="PlannerConfig.planner: unknown planner 'random'"):
+        P.expected_entropies(key, model, b, jnp.asarray([[0, 0, 0]]), PC("random"))
+    with pytest.raises(ValueError, match="expected a scrppl.planning.PlannerConfig, got str"):
+        P.choose_view(key, model, b, here, m, m, "sampled")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("n_samples", 0, "PlannerConfig.n_samples must be a positive integer, got 0"),
+        ("n_samples", 2.5, "PlannerConfig.n_samples must be a positive integer, got 2.5"),
+        ("n_samples", True, "PlannerConfig.n_samples must be a positive integer, got True"),
+        ("order", -3, "PlannerConfig.order must be a positive integer, got -3"),
+        ("motion_cost", -0.5, "PlannerConfig.motion_cost must be a finite number >= 0"),
+        ("motion_cost", float("nan"), "PlannerConfig.motion_cost must be a finite number >= 0"),
+        ("motion_cost", "cheap", "PlannerConfig.motion_cost must be a finite number >= 0"),
+        ("mode", "diagonal", "PlannerConfig.mode: unknown candidate mode 'diagonal'"),
+        ("objective", "colour", "PlannerConfig.objective: unknown objective 'colour'"),
+        ("planner", "greedy", "PlannerConfig.planner: unknown planner 'greedy'"),
+    ],
+)
+def test_planner_config_is_checked_at_entry_naming_the_field(field, value, message):
+    bad = PC()._replace(**{field: value})
+    with pytest.raises(ValueError, match=re.escape(message)):
+        P.check_planner_config(bad)
+    # the good config passes, with plain int / float fields (a NumPy integer is accepted)
+    ok = P.check_planner_config(PC(n_samples=np.int64(16), motion_cost=np.float32(0.25)))
+    assert ok == PC(n_samples=16, motion_cost=0.25)
+    assert type(ok.n_samples) is int and type(ok.motion_cost) is float
+    # a subset of planners can be required
+    with pytest.raises(ValueError, match="unknown planner 'plug_in'"):
+        P.check_planner_config(PC("plug_in"), ("sampled", "quadrature"))
+
+
+def test_planner_config_checks_run_before_any_computation(rng, key):
+    # every public entry point checks the config itself (not only deep inside, after work was done)
+    from scrppl import sim
+
+    model = random_model(rng, a=8, e=1, s=1)
+    b = B.naive_bayes_init(model)
+    m = np.ones((8, 1, 1), bool)
+    neg = PC(motion_cost=-1.0)
+    with pytest.raises(ValueError, match="PlannerConfig.motion_cost"):
+        P.choose_view(key, model, b, jnp.array([0, 0, 0]), m, m, neg)
+    trials = sim.Trials(
+        jnp.zeros((2, 8, 1, 1)), jnp.ones((2, 8, 1, 1), bool), jnp.zeros(2, jnp.int32),
+        jnp.zeros(2, jnp.int32), jnp.zeros((2, 3), jnp.int32), jnp.zeros(2, jnp.int32),
+        jnp.zeros(2, jnp.int32),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="PlannerConfig.n_samples"):
+        sim.run_trials(key, model, trials, PC(n_samples=0))
+    with pytest.raises(ValueError, match="PlannerConfig.motion_cost"):
+        sim.run_trials(key, model, trials, neg)
+    # a checked config is remembered, but an equal one of another type is checked anew (True == 1)
+    views = jnp.asarray([[0, 0, 0]])
+    P.expected_entropies(key, model, b, views, PC(n_samples=1))
+    with pytest.raises(
+        ValueError, match="PlannerConfig.n_samples must be a positive integer, got True"
+    ):
+        P.expected_entropies(key, model, b, views, PC(n_samples=True))
 
 
 def numpy_plug_in_entropy(mix, objective):
@@ -384,11 +451,11 @@ def test_plug_in_planner_scores_and_choice(rng, key, kind):
         one = [jax.tree.map(lambda x, c=c: x[c], mixtures) for c in range(8)]
         want = np.array([numpy_plug_in_entropy(m, objective) for m in one])
         lib = np.array([float(P.plug_in_expected_entropy(m, objective)) for m in one])
-        got = np.asarray(P.expected_entropies(key, model, b, views, "plug_in", objective))
+        got = np.asarray(P.expected_entropies(key, model, b, views, PC("plug_in", objective)))
         np.testing.assert_allclose(lib, want, atol=2e-5)
         np.testing.assert_allclose(got, want, atol=2e-5)
-        exact = np.asarray(P.expected_entropies(key, model, b, views, "quadrature", objective))
-        sampled = np.asarray(P.expected_entropies(key, model, b, views, "sampled", objective))
+        exact = np.asarray(P.expected_entropies(key, model, b, views, PC("quadrature", objective)))
+        sampled = np.asarray(P.expected_entropies(key, model, b, views, PC("sampled", objective)))
         assert np.abs(got - exact).max() > 0.01 and np.abs(got - sampled).max() > 0.01
     visited = np.zeros((8, 1, 1), bool)
     visited[[1, 4], 0, 0] = True
@@ -397,7 +464,7 @@ def test_plug_in_planner_scores_and_choice(rng, key, kind):
     h = np.array([numpy_plug_in_entropy(m, "joint") for m in one])
     h[[1, 4, 6]] = np.inf
     view, found, scores = P.choose_view(
-        key, model, b, jnp.array([1, 0, 0]), visited, available, planner="plug_in"
+        key, model, b, jnp.array([1, 0, 0]), visited, available, PC("plug_in")
     )
     assert bool(found) and int(view[0]) == int(np.argmin(h))
     np.testing.assert_allclose(np.asarray(scores), h, atol=2e-5)
@@ -418,7 +485,7 @@ def test_planner_inputs_are_checked_where_they_enter(rng, key):
     # three elevations of a one-elevation model would all get the score of elevation 0
     three = jnp.asarray([[2, e, 0] for e in range(3)])
     with pytest.raises(ValueError, match="elevation index out of the view grid"):
-        P.expected_entropies(key, model, b, three, "quadrature")
+        P.expected_entropies(key, model, b, three, PC("quadrature"))
     with pytest.raises(ValueError, match="robot azimuth index out of the view grid"):
         P.choose_view(key, model, b, jnp.array([8, 0, 0]), ok, ok)
     with pytest.raises(ValueError, match="must be an integer"):
@@ -448,10 +515,10 @@ def test_planner_inputs_are_checked_where_they_enter(rng, key):
         with pytest.raises(ValueError, match=message):
             P.expected_entropies(key, bad, b, views)
     # traced inputs skip the value checks and keep working inside jit and vmap
-    jitted = jax.jit(lambda c: P.choose_view(key, model, b, c, ok, ok, planner="quadrature")[0])
+    jitted = jax.jit(lambda c: P.choose_view(key, model, b, c, ok, ok, PC("quadrature"))[0])
     np.testing.assert_array_equal(
         np.asarray(jitted(here)),
-        np.asarray(P.choose_view(key, model, b, here, ok, ok, planner="quadrature")[0]),
+        np.asarray(P.choose_view(key, model, b, here, ok, ok, PC("quadrature"))[0]),
     )
     # shapes are checked while tracing too
     with pytest.raises(ValueError, match="visited mask has shape"):

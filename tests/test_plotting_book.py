@@ -242,3 +242,86 @@ def test_plot_fit_rank_panels(rng):
     plt.close("all")
     with pytest.raises(ValueError, match="no posterior variables"):
         plot_fit_rank(tree, var_names=["z"])
+
+
+# --- plotting takes the objects the library returns -----------------------------------------------
+
+
+def _loaded(kind, transform="identity"):
+    import jax.numpy as jnp
+
+    from scrppl.models.io import ViewpointModel
+    from scrppl.models.response import ResponseModel
+
+    profile = np.array([0.5, 1.0, 2.0, 1.0, 0.5, 1.0, 2.0, 1.0])
+    rm = ResponseModel.from_profile(profile, absent=0.1, sigma=0.5, tau=0.2 if kind == "h" else 0.0)
+    assert isinstance(rm.mu, jnp.ndarray)
+    return ViewpointModel(rm, "hierarchical" if kind == "h" else "gaussian", "sift", "car", transform, None)
+
+
+def test_plot_viewpoint_functions_takes_loaded_models():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_viewpoint_functions
+
+    h, g = _loaded("h", "anscombe"), _loaded("g", "anscombe")
+    fig = plot_viewpoint_functions(h, gaussian=g)
+    assert len(fig.axes) == 2
+    ax = fig.axes[0]
+    assert ax.get_title().startswith("sift / car")  # the title comes from the loaded model
+    assert ax.get_ylabel() == "response (anscombe scale)"  # and the radial label from its transform
+    # the predictive mean drawn is the model's: mu of the present class, closed around the circle
+    mean_line = next(line for line in ax.lines if line.get_color() == "tab:red")
+    np.testing.assert_allclose(mean_line.get_ydata()[:8], [0.5, 1.0, 2.0, 1.0, 0.5, 1.0, 2.0, 1.0])
+    assert len(ax.lines) == 4  # predictive mean, Gaussian mean and its two band edges
+    plt.close(fig)
+    # a list of models: one row each, no overlay; a ResponseModel works as well as a loaded model
+    fig = plot_viewpoint_functions([h, g.response_model], titles=["a", "b"])
+    assert len(fig.axes) == 4 and fig.axes[2].get_title().startswith("b")
+    plt.close(fig)
+    with pytest.raises(ValueError, match="2 models but 1 gaussian overlays and 2 titles"):
+        plot_viewpoint_functions([h, g], gaussian=[g])
+    with pytest.raises(ValueError, match="at least one model"):
+        plot_viewpoint_functions([])
+
+
+def test_plot_calibration_draws_into_given_axes():
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_calibration
+
+    cal = {
+        "naive_bayes": {"ece": 0.1, "mean_p": [0.1, None, 0.9], "frac": [0.2, None, 0.8], "count": [5, 0, 5]},
+        "instance": {"ece": 0.05, "mean_p": [0.2, 0.5, 0.8], "frac": [0.2, 0.5, 0.8], "count": [3, 3, 3]},
+    }
+    fig, (left, right) = plt.subplots(1, 2)
+    assert plot_calibration(cal, "pooled", ax=right) is fig
+    assert len(left.lines) == 0 and right.get_title() == "pooled"
+    # the diagonal, then one line per filter with its empty bins left out
+    assert len(right.lines) == 3
+    np.testing.assert_allclose(right.lines[1].get_xdata(), [0.1, 0.9])
+    plt.close(fig)
+
+
+def test_save_figure_is_atomic_and_the_only_one(tmp_path):
+    import matplotlib.pyplot as plt
+
+    import scrppl.plotting as plotting
+    from scrppl.plotting import dataset, models
+
+    # one definition: wherever the name is reachable, it is the same function
+    assert getattr(dataset, "save_figure", plotting.save_figure) is plotting.save_figure
+    assert getattr(models, "save_figure", plotting.save_figure) is plotting.save_figure
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    path = plotting.save_figure(fig, tmp_path / "sub" / "f.png", close=True)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not plt.fignum_exists(fig.number)
+    assert [p.name for p in path.parent.iterdir()] == ["f.png"]  # no temporary file left behind
+    bad = plt.figure()
+    bad.savefig = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("disk full"))
+    with pytest.raises(RuntimeError, match="disk full"):
+        plotting.save_figure(bad, path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the old file survives a failed save
+    assert [p.name for p in path.parent.iterdir()] == ["f.png"]
+    plt.close(bad)

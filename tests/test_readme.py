@@ -13,7 +13,8 @@ def test_readme_library_example_runs():
     exec(compile(block, "README.md", "exec"), env)  # noqa: S102 - the README's own example
     # p(o | f = 0.9 at phi = 0) by Bayes' rule over (o, theta), written out: class 1 responds
     # mu[(0 - theta) mod 8] with sd 0.5, class 0 responds 0 with sd 0.5, uniform prior
-    mu = np.asarray(env["mu"])[0, :, :, 0, 0]  # (O, A)
+    mu = np.asarray(env["model"].mu)[0, :, :, 0, 0]  # (O, A)
+    np.testing.assert_array_equal(mu, [[0.0] * 8, [0.5, 1, 2, 1, 0.5, 1, 2, 1]])
     rel = (0 - np.arange(8)) % 8
     joint = stats.norm.pdf(0.9, mu[:, rel], 0.5)
     want = joint.sum(1) / joint.sum()
@@ -26,6 +27,49 @@ def test_readme_library_example_runs():
     # which is also best by the exact expected entropy (sampling picked one of the tied optima)
     views = jnp.asarray([[phi, 0, 0] for phi in range(8)])
     exact = np.asarray(
-        env["planning"].expected_entropies(None, env["model"], env["b"], views, "quadrature")
+        env["planning"].expected_entropies(
+            None, env["model"], env["b"], views, env["planning"].PlannerConfig("quadrature")
+        )
     )
     assert exact[int(env["view"][0])] <= exact[1:].min() + 1e-4
+
+
+def test_readme_loading_example_runs_on_a_run_folder(tmp_path, monkeypatch, rng):
+    """The README's loading lines, run as written on a small run folder of the same layout."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from scrppl.models.io import model_path, save_gaussian, save_posterior
+    from scrppl.models.response import ResponseModel, log_prob
+    from scrppl.responses import empty_response_table, save_response_table
+    from scrppl.views import ViewGrid
+    from tests.test_models_predictive import A, E, S, _posterior
+
+    run = tmp_path / "results"
+    grid = ViewGrid(A, (25.0, 35.0), (1.0,))
+    split = np.array([["test"] * 2, ["test"] * 2])
+    table = empty_response_table(["dpm"], ["car"], ["bicycle", "car"], 2, grid, split)
+    table["score"][:] = rng.normal(size=table["score"].shape)
+    save_response_table(table, run / "responses.nc")
+    tree, _ = _posterior(rng)
+    save_posterior(model_path(run / "models", "hierarchical", "dpm", "car"), tree)
+    g = ResponseModel(
+        jnp.asarray(rng.normal(size=(1, 2, A, E, S))), jnp.ones((1, 2, A, E, S)), jnp.zeros((1, 2))
+    )
+    meta = {"detector": "dpm", "target": "car", "transform": "identity"}
+    save_gaussian(
+        model_path(run / "models", "gaussian", "dpm", "car"), g, np.ones((2, A, E, S)), meta
+    )
+
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    block = re.search(r"After\n`make reproduce`:\n\n```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    env: dict = {}
+    exec(compile(block, "README.md", "exec"), env)  # noqa: S102 - the README's own example
+    m, raw = env["m"], env["raw"]
+    assert m.kind == "hierarchical" and m.transform == "identity" and m.grid.n_azimuth == A
+    assert raw.shape == (2, A, E, S)
+    # the README's log density is the predictive's at the same response and view
+    want = log_prob(m.response_model, jnp.asarray(raw[0, 2, 0, 0]), 1, 2, 0, 0)
+    np.testing.assert_allclose(np.asarray(env["m"].log_prob(raw[0, 2, 0, 0], o=1, a=2)), want)
+    assert len(env["fig"].axes) == 2  # one row: positives and negatives

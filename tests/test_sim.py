@@ -1,5 +1,7 @@
 """Simulator, trial runner, metrics and the paired experiment on a small synthetic response table."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,7 +10,9 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from scrppl import sim
+from scrppl.models.io import ViewpointModel
 from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig as PC
 from scrppl.responses import empty_response_table
 from scrppl.sim import metrics as M
 from scrppl.views import ViewGrid
@@ -149,7 +153,7 @@ def brute_force_log_belief(model, views, f):
 @pytest.mark.parametrize("planner", ["sampled", "random"])
 def test_runner_records_are_consistent(table, model, key, planner):
     trials = sim.make_trials(key, table, "dpm", "car", 6)
-    rec = sim.run_trials(key, model, trials, planner=planner, n_samples=64, chunk_size=CHUNK)
+    rec = sim.run_trials(key, model, trials, PC(planner, n_samples=64), chunk_size=CHUNK)
     views = np.asarray(rec.views)
     assert views.shape == (6, A, 3) and np.asarray(rec.observed).all()
     for t in range(6):
@@ -169,8 +173,7 @@ def test_runner_records_are_consistent(table, model, key, planner):
         key,
         model,
         sim.select_trials(trials, slice(0, 3)),
-        planner=planner,
-        n_samples=64,
+        PC(planner, n_samples=64),
         chunk_size=CHUNK,
     )
     np.testing.assert_array_equal(np.asarray(again.views), views[:3])
@@ -179,7 +182,9 @@ def test_runner_records_are_consistent(table, model, key, planner):
         # nor on how many phases (scans scoring only the views that can be left) a trial is split into
         phased = jax.jit(
             jax.vmap(
-                lambda k, r, a, p, st: sim.run_trial(k, model, r, a, p, st, n_samples=64, phases=3)
+                lambda k, r, a, p, st: sim.run_trial(
+                    k, model, r, a, p, st, config=PC(n_samples=64), phases=3
+                )
             )
         )(
             jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(6)),
@@ -195,7 +200,7 @@ def test_runner_records_are_consistent(table, model, key, planner):
         # nor on how the batch is cut: several chunks (the last one padded), vectorised pairs, one
         # device instead of two
         cut = sim.run_trials(
-            key, model, trials, n_samples=64, chunk_size=4, batch_size=2, devices=1
+            key, model, trials, PC(n_samples=64), chunk_size=4, batch_size=2, devices=1
         )
         np.testing.assert_array_equal(np.asarray(cut.views), views)
         np.testing.assert_allclose(
@@ -203,14 +208,14 @@ def test_runner_records_are_consistent(table, model, key, planner):
         )
     if planner == "random":
         # nor on how many CPU devices the trials are split over
-        one = sim.run_trials(key, model, trials, planner=planner, chunk_size=CHUNK, devices=1)
+        one = sim.run_trials(key, model, trials, PC(planner), chunk_size=CHUNK, devices=1)
         np.testing.assert_array_equal(np.asarray(one.views), views)
 
 
 def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key):
     trials = sim.make_trials(key, table, "dpm", "car", 24, positive_fraction=0.0)
     n_steps = A * E * S
-    rec = sim.run_trials(key, model, trials, planner="random", mode="all", n_steps=n_steps)
+    rec = sim.run_trials(key, model, trials, PC("random", mode="all"), n_steps=n_steps)
     avail = np.asarray(trials.available)
     pose = np.asarray(trials.pose)
     obs = np.asarray(rec.observed)
@@ -307,17 +312,18 @@ def test_experiment_entropy_planner_beats_random(table, model, key, tmp_path):
         "naive_bayes": sim.Method(model, "naive_bayes", trials),
         "instance": sim.Method(model, "instance", trials),
     }
-    ds = sim.run_experiment(
-        key, methods, ("sampled", "random"), category_names=CATS, n_samples=64, chunk_size=CHUNK
-    )
-    assert ds["class_entropy"].dims == ("filter", "planner", "trial", "step")
+    planners = [PC("sampled", n_samples=64), PC("random")]
+    ds = sim.run_experiment(key, methods, planners, category_names=CATS, chunk_size=CHUNK)
+    assert ds["class_entropy"].dims == ("method", "planner", "trial", "step")
+    assert list(ds["planner"].values) == ["sampled", "random"]
+    assert json.loads(ds.attrs["planner_configs"])["sampled"]["n_samples"] == 64
     comp = sim.compare_planners(ds)
     # informative side views exist: entropy planning reaches confidence sooner, on the same trials
     assert comp["naive_bayes"]["views_to_confidence_difference"]["hi"] < 0
     # with one draw and tau = 0 the instance-aware filter is naive Bayes
     np.testing.assert_allclose(
-        ds["p_present"].sel({"filter": "instance"}),
-        ds["p_present"].sel({"filter": "naive_bayes"}),
+        ds["p_present"].sel({"method": "instance"}),
+        ds["p_present"].sel({"method": "naive_bayes"}),
         atol=1e-4,
     )
     summ = sim.summarise(ds, n_boot=100)
@@ -337,6 +343,68 @@ def test_experiment_entropy_planner_beats_random(table, model, key, tmp_path):
     assert list(back["category"].values[:3]) == list(ds["category"].values[:3])
 
 
+def test_load_trials_renames_the_old_filter_dimension_and_rejects_other_files(tmp_path):
+    # trials.nc written before the methods' dimension was named "method" had it as "filter"
+    import xarray as xr
+
+    rng = np.random.default_rng(0)
+    vtc = rng.integers(1, 9, size=(2, 2, 5))
+    old = xr.Dataset(
+        {
+            "views_to_confidence": (("filter", "planner", "trial"), vtc),
+            "p_present": (("filter", "planner", "trial", "step"), rng.uniform(size=(2, 2, 5, 3))),
+        },
+        coords={
+            "filter": ["gaussian+naive_bayes", "hierarchical+instance"],
+            "planner": ["sampled", "random"],
+            "trial": np.arange(5),
+            "step": np.arange(1, 4),
+            "filter_kind": ("filter", ["naive_bayes", "instance"]),
+            "label": ("trial", [0, 1, 1, 0, 1]),
+        },
+    )
+    old.to_netcdf(tmp_path / "old.nc", engine="h5netcdf")
+    back = sim.load_trials(tmp_path / "old.nc")
+    assert back["p_present"].dims == ("method", "planner", "trial", "step")
+    assert "filter" not in back.dims
+    assert list(back["method"].values) == ["gaussian+naive_bayes", "hierarchical+instance"]
+    assert list(back["filter_kind"].values) == ["naive_bayes", "instance"]
+    got = back["views_to_confidence"].sel({"method": "hierarchical+instance", "planner": "random"})
+    np.testing.assert_array_equal(got.values, vtc[1, 1])
+    # the readers work on it: per-method calibration and summaries
+    assert set(sim.calibration(back)) == {"gaussian+naive_bayes", "hierarchical+instance"}
+    # a file with trial results under the new name loads unchanged
+    sim.save_trials(back, tmp_path / "new.nc")
+    xr.testing.assert_identical(sim.load_trials(tmp_path / "new.nc"), back)
+    # a netCDF file that holds no trial results (e.g. a response table) is refused, naming the file
+    xr.Dataset({"score": (("x",), np.zeros(3))}).to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
+    with pytest.raises(ValueError, match=r"other\.nc holds no trial results"):
+        sim.load_trials(tmp_path / "other.nc")
+
+
+def test_experiment_planners_are_named_planner_configs(table, model, key):
+    from scrppl.sim.experiment import planner_configs
+
+    # a sequence is named by the planner field, a mapping keeps its names
+    assert list(planner_configs([PC("sampled"), PC("random")])) == ["sampled", "random"]
+    both = planner_configs({"M=16": PC(n_samples=16), "M=64": PC(n_samples=64)})
+    assert {k: v.n_samples for k, v in both.items()} == {"M=16": 16, "M=64": 64}
+    with pytest.raises(ValueError, match="distinct names"):
+        planner_configs([PC(n_samples=16), PC(n_samples=64)])
+    with pytest.raises(ValueError, match="at least one planner"):
+        planner_configs([])
+    with pytest.raises(ValueError, match="a sequence of PlannerConfig"):
+        planner_configs(("sampled", "random")[0])
+    with pytest.raises(ValueError, match="PlannerConfig.order"):
+        planner_configs({"q": PC("quadrature", order=0)})
+    with pytest.raises(ValueError, match="got planner='random'"):
+        sim.study.study_planners(PC("random"))
+    # the old keyword arguments are refused with a pointer to the config
+    trials = sim.make_trials(key, table, "dpm", "car", 2)
+    with pytest.raises(ValueError, match="n_samples: planner settings travel in the planners"):
+        sim.run_experiment(key, {"nb": sim.Method(model, "naive_bayes", trials)}, n_samples=8)
+
+
 @pytest.mark.slow
 def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     import json
@@ -353,7 +421,7 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
         calls.append((kind, detector, target, n_draws))
         if kind != "gaussian":
             raise FileNotFoundError(f"no {kind} model in {models_dir}")
-        return model, {"transform": "identity"}
+        return ViewpointModel(model, kind, detector, target, "identity", None)
 
     monkeypatch.setattr(models, "load_response_model", fake_loader, raising=False)
     argv = ["simulate", "--out", str(tmp_path), "--profile", "quick", "--trials", "12"]
@@ -375,8 +443,9 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     assert {"fig4-car.png", "fig5-car-gaussian-naive_bayes.png", "calibration.png"} <= figures
     # a notebook calling the library gets the command's numbers for the same seed
     study = sim.run_study(
-        0, table, tmp_path / "models", "dpm", ["car"], trials=12, n_samples=64, max_draws=6
-    )
+        0, table, tmp_path / "models", "dpm", ["car"], trials=12, config=PC(n_samples=64),
+        max_draws=6,
+    )  # fmt: skip
     assert study.large is None
     for var in ("views_to_confidence", "p_true", "azimuth"):
         np.testing.assert_array_equal(study.trials[var].values, ds[var].values)
@@ -403,11 +472,14 @@ def test_simulate_gives_the_large_experiment_its_own_posterior_draws(
         if kind != "hierarchical":
             raise FileNotFoundError(f"no {kind} model in {models_dir}")
         keep = np.round(np.linspace(0, 9, min(n_draws or 10, 10))).astype(int)
-        return ResponseModel(*(x[keep] for x in many)), {"transform": "identity"}
+        thinned = ResponseModel(*(x[keep] for x in many))
+        return ViewpointModel(thinned, kind, detector, target, "identity", None)
 
     runs = []
 
-    def fake_run_trials(key, model, trials, *, filter="naive_bayes", n_steps=None, **options):
+    def fake_run_trials(
+        key, model, trials, config=None, *, filter="naive_bayes", n_steps=None, **kw
+    ):
         runs.append((trials.n_trials, filter, model.mu.shape[0]))
         n, k = trials.n_trials, A if n_steps is None else n_steps
         views = jnp.broadcast_to(jnp.asarray(trials.start)[:, None], (n, k, 3))

@@ -542,7 +542,7 @@ def check_8_3(expected_entropy_quadrature) -> str:
 # -- 8.4 a planner that pays for travel -------------------------------------------------------------
 def _choose(model, belief, current, visited, available, motion_cost):
     """:func:`scrppl.planning.choose_view` (quadrature planner, joint objective): view and scores."""
-    from scrppl.planning import choose_view
+    from scrppl.planning import PlannerConfig, choose_view
 
     view, _, scores = choose_view(
         None,
@@ -551,8 +551,7 @@ def _choose(model, belief, current, visited, available, motion_cost):
         jnp.asarray(current),
         jnp.asarray(visited),
         jnp.asarray(available),
-        planner="quadrature",
-        motion_cost=float(motion_cost),
+        PlannerConfig("quadrature", motion_cost=float(motion_cost)),
     )
     return tuple(int(x) for x in np.asarray(view)), np.asarray(scores, float)
 

@@ -268,6 +268,7 @@ def _ring(current, n_azimuth):
 
 def _library_choice(models, belief, current, visited, available, costs, cost_weight):
     from scrppl.extensions import choose_view_and_detector
+    from scrppl.planning import PlannerConfig
 
     view, det, found, scores = choose_view_and_detector(
         jax.random.key(0),
@@ -276,10 +277,9 @@ def _library_choice(models, belief, current, visited, available, costs, cost_wei
         jnp.asarray(current),
         visited,
         available,
-        jnp.asarray(costs, jnp.float32),
-        cost_weight,
-        planner="quadrature",
-        order=32,
+        PlannerConfig("quadrature", order=32),
+        costs=jnp.asarray(costs, jnp.float32),
+        cost_weight=cost_weight,
     )
     return np.asarray(view), int(det), bool(found), np.asarray(scores, float)
 
@@ -351,11 +351,10 @@ def _scores_cases() -> Sequence[Case]:
 
 def _entropies(models, belief, views):
     from scrppl.extensions import detector_expected_entropies
+    from scrppl.planning import PlannerConfig
 
-    return np.asarray(
-        detector_expected_entropies(None, models, belief, views, planner="quadrature", order=32),
-        float,
-    )
+    config = PlannerConfig("quadrature", order=32)
+    return np.asarray(detector_expected_entropies(None, models, belief, views, config), float)
 
 
 _SCORE_MISTAKES = [
@@ -451,7 +450,7 @@ def check_10_2(action_scores, choose_action) -> str:
         atol=2e-4,
         mistakes=_SCORE_MISTAKES,
         hint="column d is sp.planning.expected_entropies(None, models[d], belief, views, "
-        "planner='quadrature', order=32) plus cost_weight * costs[d].",
+        "sp.planning.PlannerConfig('quadrature', order=32)) plus cost_weight * costs[d].",
     )
     from scrppl.planning import candidate_views
 
@@ -508,7 +507,9 @@ def _node_table(model, belief, views, first, order):
 
     def after(f):
         b1 = update(model, belief, f, v1[0], v1[1], v1[2])
-        inner = P._expected_entropies(None, model, b1, views, "quadrature", "joint", 1, order)
+        inner = P._expected_entropies(
+            None, model, b1, views, P.PlannerConfig("quadrature", order=order)
+        )
         return inner, joint_entropy(b1)
 
     inner, h1 = jax.lax.map(after, f1)
@@ -538,13 +539,14 @@ def _two_step_wrong(model, belief, views, valid, first, order=8, *, how):
 
 def _plug_in_first(model, belief, views, valid, first, order=8):
     from scrppl.belief import predictive_mixture, update
-    from scrppl.planning import expected_entropies
+    from scrppl.planning import PlannerConfig, expected_entropies
 
     v1 = np.asarray(views)[first]
     mix = predictive_mixture(model, belief, *v1)
     f_bar = float(jnp.sum(jnp.exp(mix.log_weight) * mix.mean))
     b1 = update(model, belief, f_bar, *v1)
-    inner = np.asarray(expected_entropies(None, model, b1, views, "quadrature", order=order))
+    config = PlannerConfig("quadrature", order=order)
+    inner = np.asarray(expected_entropies(None, model, b1, views, config))
     others = np.asarray(valid, bool) & (np.arange(len(inner)) != first)
     return float(np.min(inner[others]))
 

@@ -8,7 +8,9 @@
 * :mod:`~scrppl.extensions.trials` -- multi-detector trials from a response table and a batched runner,
   paired with the single-detector trials of :mod:`scrppl.sim`.
 
-The motion-cost extension lives in :func:`scrppl.planning.choose_view` (``motion_cost``).
+The motion-cost extension lives in :func:`scrppl.planning.choose_view` (``PlannerConfig.motion_cost``).
+Every planner here takes its settings as one :class:`scrppl.planning.PlannerConfig` and decides with
+:func:`scrppl.planning.select_view`.
 
 A paired comparison on a response table (``models``: one response model per detector, ``tfs``: each
 detector's transform)::
@@ -26,6 +28,7 @@ detector's transform)::
 
 from scrppl.extensions.detectors import choose_view_and_detector, detector_expected_entropies
 from scrppl.extensions.fusion import (
+    FUSED_PLANNER,
     FusedInstanceBelief,
     check_fused_belief,
     check_models,
@@ -39,6 +42,7 @@ from scrppl.extensions.fusion import (
     fused_update,
 )
 from scrppl.extensions.lookahead import (
+    TWO_STEP_PLANNER,
     choose_view_two_step,
     sampled_two_step_expected_entropies,
     two_step_expected_entropies,
@@ -57,11 +61,13 @@ from scrppl.extensions.trials import (
 
 __all__ = [
     # lookahead
+    "TWO_STEP_PLANNER",
     "two_step_value_after",
     "two_step_expected_entropies",
     "sampled_two_step_expected_entropies",
     "choose_view_two_step",
     # fusion
+    "FUSED_PLANNER",
     "FusedInstanceBelief",
     "check_models",
     "check_fused_belief",

@@ -29,10 +29,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from scrppl import planning as P
-from scrppl._planning_kernel import _sampled_expected_entropy
-from scrppl.extensions.fusion import check_fused_belief, check_models, detector_mixture
+from scrppl.extensions.fusion import (
+    check_fused_belief,
+    check_models,
+    check_planning_inputs,
+    detector_mixture,
+)
 from scrppl.models.response import ResponseModel
-from scrppl.views import angular_distance, check_mask_shape
+from scrppl.planning import DEFAULT_PLANNER, PlannerConfig
+from scrppl.views import check_mask_shape
 
 __all__ = ["detector_expected_entropies", "choose_view_and_detector"]
 
@@ -42,10 +47,7 @@ def detector_expected_entropies(
     models: Sequence[ResponseModel],
     belief,
     views,
-    planner: str = "sampled",
-    objective: str = "joint",
-    n_samples: int = 256,
-    order: int = 32,
+    config: PlannerConfig = DEFAULT_PLANNER,
 ) -> jax.Array:
     """Expected posterior entropy (nats) of running detector ``d`` at candidate view ``c``, ``(C, D)``.
 
@@ -59,24 +61,22 @@ def detector_expected_entropies(
         A fused belief (:func:`~scrppl.extensions.fusion.fused_init`).
     views
         Candidate robot views ``(phi, e, s)``, integer ``(C, 3)``.
-    planner
-        ``"sampled"``, ``"quadrature"`` or ``"plug_in"`` (as in :func:`scrppl.planning.expected_entropies`).
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    n_samples, order
-        ``M`` for ``"sampled"``; Gauss-Hermite order for ``"quadrature"``.
+    config
+        :class:`~scrppl.planning.PlannerConfig`: the planner (``"sampled"``, ``"quadrature"`` or
+        ``"plug_in"``, as in :func:`scrppl.planning.expected_entropies`), the objective, ``M`` and the
+        Gauss-Hermite order.
     """
-    models = check_models(models)
-    P.check_planner_inputs(models[0], views=views)
-    check_fused_belief(models, belief)
-    return _detector_expected_entropies(
-        key, models, belief, views, planner, objective, n_samples, order
-    )
+    models, config = check_planning_inputs(models, belief, views, config, P.ENTROPY_PLANNERS)
+    return _detector_expected_entropies(key, models, belief, views, config)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
-def _detector_expected_entropies(key, models, belief, views, planner, objective, n_samples, order):
-    """:func:`detector_expected_entropies` without the input checks (compiled)."""
+@partial(jax.jit, static_argnames=("config",))
+def _detector_expected_entropies(key, models, belief, views, config):
+    """:func:`detector_expected_entropies` without the input checks (compiled).
+
+    Column ``d`` is :func:`scrppl.planning.mixture_expected_entropies` of detector ``d``'s predictive
+    mixtures at the candidates (the same draws for every detector when sampled).
+    """
     models = check_models(models)
     views = jnp.asarray(views)
     cols = []
@@ -84,20 +84,7 @@ def _detector_expected_entropies(key, models, belief, views, planner, objective,
         mixtures = jax.vmap(lambda v, d=d: detector_mixture(models, belief, d, v[0], v[1], v[2]))(
             views
         )
-        if planner == "sampled":
-            # P.sampled_expected_entropy, computed by the planner's CPU kernel (same draws)
-            h = jax.vmap(lambda m: _sampled_expected_entropy(key, m, n_samples, objective))(
-                mixtures
-            )
-        elif planner == "quadrature":
-            h = jax.vmap(lambda m: P.quadrature_expected_entropy(m, objective, order))(mixtures)
-        elif planner == "plug_in":
-            h = jax.vmap(lambda m: P.plug_in_expected_entropy(m, objective))(mixtures)
-        else:
-            raise ValueError(
-                f"unknown entropy planner {planner!r}; expected 'sampled', 'quadrature' or 'plug_in'"
-            )
-        cols.append(h)
+        cols.append(P.mixture_expected_entropies(key, mixtures, config))
     return jnp.stack(cols, axis=1)
 
 
@@ -108,19 +95,16 @@ def choose_view_and_detector(
     current,
     visited,
     available,
+    config: PlannerConfig = DEFAULT_PLANNER,
+    *,
     costs=None,
     cost_weight=0.0,
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
-    n_samples: int = 256,
-    order: int = 32,
-    motion_cost=0.0,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """Choose the next robot view and the detector to run there.
 
-    ``(V*, d*) = argmin E[H(b | F, f_{V, d})] + cost_weight * costs[d] + motion_cost * dist(phi_V, phi)``,
-    or a uniformly random valid pair for ``planner="random"``.
+    ``(V*, d*) = argmin E[H(b | F, f_{V, d})] + cost_weight * costs[d] + motion_cost * dist(phi_V, phi)``
+    (decided by :func:`scrppl.planning.select_view`), or a uniformly random valid pair for
+    ``planner="random"``.
 
     Parameters
     ----------
@@ -135,21 +119,15 @@ def choose_view_and_detector(
     visited, available
         Boolean ``(D, A, E, S)``: (detector, robot view) pairs already run, and pairs that can be run
         (``False`` where the image is missing). ``(A, E, S)`` masks are broadcast to every detector.
+    config
+        :class:`~scrppl.planning.PlannerConfig`: the planner (``"random"``, ``"sampled"``,
+        ``"quadrature"`` or ``"plug_in"``), the objective, the candidate ``mode`` (``"azimuth"``: the
+        current elevation and scale, or ``"all"``, see :func:`scrppl.planning.candidate_views`), ``M``,
+        the Gauss-Hermite order and the motion cost in nats per azimuth bin travelled.
     costs
         ``(D,)`` cost of running each detector (e.g. seconds); zeros by default.
     cost_weight
         Nats per unit of cost (``lambda``).
-    planner
-        ``"random"``, ``"sampled"``, ``"quadrature"`` or ``"plug_in"``.
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    mode
-        ``"azimuth"`` (the current elevation and scale) or ``"all"`` (see
-        :func:`scrppl.planning.candidate_views`).
-    n_samples, order
-        ``M`` for ``"sampled"``; Gauss-Hermite order for ``"quadrature"``.
-    motion_cost
-        Nats per azimuth bin travelled.
 
     Returns
     -------
@@ -162,6 +140,7 @@ def choose_view_and_detector(
     scores
         ``(C, D)`` score of each pair (``+inf`` for invalid ones; zeros for ``"random"``).
     """
+    config = P.check_planner_config(config)
     models = check_models(models)
     P.check_planner_inputs(models[0], current=current)
     check_fused_belief(models, belief)
@@ -169,40 +148,17 @@ def choose_view_and_detector(
     for name, mask in (("visited mask", visited), ("available mask", available)):
         shape = (len(models), *grid) if len(np.shape(mask)) == 4 else grid
         check_mask_shape(mask, shape, name=name, where="the models' (D, A, E, S) or (A, E, S) grid")
+    if costs is not None and np.shape(costs) != (len(models),):
+        raise ValueError(f"costs must have shape ({len(models)},), got {np.shape(costs)}")
     return _choose_view_and_detector(
-        key,
-        models,
-        belief,
-        current,
-        visited,
-        available,
-        costs,
-        cost_weight,
-        planner=planner,
-        objective=objective,
-        mode=mode,
-        n_samples=n_samples,
-        order=order,
-        motion_cost=motion_cost,
-    )
+        key, models, belief, current, visited, available, costs, cost_weight, config.motion_cost,
+        config=P._compiled_part(config),
+    )  # fmt: skip
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "mode", "n_samples", "order"))
+@partial(jax.jit, static_argnames=("config",))
 def _choose_view_and_detector(
-    key,
-    models,
-    belief,
-    current,
-    visited,
-    available,
-    costs,
-    cost_weight,
-    planner,
-    objective,
-    mode,
-    n_samples,
-    order,
-    motion_cost,
+    key, models, belief, current, visited, available, costs, cost_weight, motion_cost, config
 ):
     """:func:`choose_view_and_detector` without the input checks (compiled)."""
     models = check_models(models)
@@ -210,22 +166,17 @@ def _choose_view_and_detector(
     n_a, n_e, n_s = models[0].mu.shape[2:5]
     visited = jnp.broadcast_to(jnp.asarray(visited, bool), (n_det, n_a, n_e, n_s))
     available = jnp.broadcast_to(jnp.asarray(available, bool), (n_det, n_a, n_e, n_s))
-    cand = [P.candidate_views(current, visited[d], available[d], mode) for d in range(n_det)]
+    cand = [P.candidate_views(current, visited[d], available[d], config.mode) for d in range(n_det)]
     views = cand[0][0]
     valid = jnp.stack([c[1] for c in cand], axis=1)  # (C, D)
-    if planner == "random":
+    if config.planner == "random":
         idx, found = P.random_unseen_view(key, valid.ravel())
         scores = jnp.where(valid, 0.0, jnp.inf)
-    elif planner in P.PLANNERS:
-        h = _detector_expected_entropies(
-            key, models, belief, views, planner, objective, n_samples, order
-        )
-        costs = jnp.zeros(n_det, h.dtype) if costs is None else jnp.asarray(costs, h.dtype)
-        if costs.shape != (n_det,):
-            raise ValueError(f"costs must have shape ({n_det},), got {costs.shape}")
-        dist = angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
-        cost = cost_weight * costs[None, :] + (motion_cost * dist)[:, None]
-        idx, found, scores = P.select_view(h, cost, valid)
     else:
-        raise ValueError(f"unknown planner {planner!r}; expected one of {P.PLANNERS}")
+        h = _detector_expected_entropies(key, models, belief, views, config)
+        costs = jnp.zeros(n_det, h.dtype) if costs is None else jnp.asarray(costs, h.dtype)
+        cost = (
+            cost_weight * costs[None, :] + P.travel_cost(views, current, motion_cost, n_a)[:, None]
+        )
+        idx, found, scores = P.select_view(h, cost, valid)
     return views[idx // n_det], idx % n_det, found, scores

@@ -59,11 +59,15 @@ from scrppl.belief import (
     view_parameters,
 )
 from scrppl.models.response import ResponseModel, check_response_model, normal_log_density
+from scrppl.planning import PlannerConfig
 
 __all__ = [
+    "FUSED_PLANNER",
+    "FUSED_PLANNERS",
     "FusedInstanceBelief",
     "check_models",
     "check_fused_belief",
+    "check_planning_inputs",
     "fused_init",
     "fused_log_likelihood",
     "fused_update",
@@ -73,6 +77,12 @@ __all__ = [
     "fused_expected_entropy",
     "fused_expected_entropies",
 ]
+
+
+#: Planners of the "run all detectors" expected entropy (:func:`fused_expected_entropy`).
+FUSED_PLANNERS = ("quadrature", "sampled")
+#: Their default: nested Gauss-Hermite quadrature with 16 nodes per detector and component (exact).
+FUSED_PLANNER = PlannerConfig("quadrature", order=16)
 
 
 class FusedInstanceBelief(NamedTuple):
@@ -379,6 +389,23 @@ def fused_posterior_entropy(
     return objective_entropy(logp, objective)
 
 
+def check_planning_inputs(
+    models: Sequence[ResponseModel], belief, views, config: PlannerConfig, planners: tuple[str, ...]
+) -> tuple[tuple[ResponseModel, ...], PlannerConfig]:
+    """Check what a multi-detector planner is given: models, fused belief, candidate views and config.
+
+    Returns the models as a tuple and the config's compiled part (without its motion cost); raises
+    ``ValueError`` naming the problem (:func:`check_models`, :func:`check_fused_belief`,
+    :func:`scrppl.planning.check_planner_inputs`, :func:`scrppl.planning.check_planner_config` with
+    the allowed ``planners``).
+    """
+    config = P.check_planner_config(config, planners)
+    models = check_models(models)
+    P.check_planner_inputs(models[0], views=views)
+    check_fused_belief(models, belief)
+    return models, P._compiled_part(config)
+
+
 def _check_objective(objective: str) -> None:
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
@@ -442,10 +469,7 @@ def fused_expected_entropy(
     phi,
     e=0,
     s=0,
-    planner: str = "quadrature",
-    objective: str = "joint",
-    n_samples: int = 256,
-    order: int = 16,
+    config: PlannerConfig = FUSED_PLANNER,
 ) -> jax.Array:
     """Expected posterior entropy after running *all* ``D`` detectors at robot view ``(phi, e, s)``.
 
@@ -464,31 +488,35 @@ def fused_expected_entropy(
         A fused belief (:func:`fused_init`).
     phi, e, s
         Robot view.
-    planner
-        ``"quadrature"``: nested Gauss-Hermite quadrature, ``order`` nodes per detector and mixture
-        component, exact to quadrature error; cost ``O(O A * prod_d (N_d order) * O A sum_d N_d)``, so
-        it suits few detectors and few draws. ``"sampled"``: ``M = n_samples`` joint draws (unbiased).
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    n_samples, order
-        ``M`` for ``"sampled"``; Gauss-Hermite order for ``"quadrature"``.
+    config
+        :class:`~scrppl.planning.PlannerConfig` (default :data:`FUSED_PLANNER`), ``planner`` one of
+        :data:`FUSED_PLANNERS`. ``"quadrature"``: nested Gauss-Hermite quadrature, ``order`` nodes per
+        detector and mixture component, exact to quadrature error; cost
+        ``O(O A * prod_d (N_d order) * O A sum_d N_d)``, so it suits few detectors and few draws.
+        ``"sampled"``: ``M = n_samples`` joint draws (unbiased). ``objective``: ``"joint"``,
+        ``"class"`` or ``"pose"``; ``mode`` and ``motion_cost`` are not used here.
 
     Returns
     -------
     Scalar expected entropy in nats.
     """
+    config = P.check_planner_config(config, FUSED_PLANNERS)
     models = check_models(models)
     check_fused_belief(models, belief)
     check_view(models[0], phi, e, s)
-    return _fused_expected_entropy(
-        key, models, belief, phi, e, s, planner, objective, n_samples, order
-    )
+    return _fused_expected_entropy(key, models, belief, phi, e, s, P._compiled_part(config))
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
-def _fused_expected_entropy(key, models, belief, phi, e, s, planner, objective, n_samples, order):
+@partial(jax.jit, static_argnames=("config",))
+def _fused_expected_entropy(key, models, belief, phi, e, s, config):
     """:func:`fused_expected_entropy` without the input checks (compiled)."""
     models = check_models(models)
+    planner, objective, n_samples, order = (
+        config.planner,
+        config.objective,
+        config.n_samples,
+        config.order,
+    )
     _check_objective(objective)
     if len(models) == 1:
         mix = detector_mixture(models, belief, 0, phi, e, s)
@@ -509,31 +537,24 @@ def fused_expected_entropies(
     models: Sequence[ResponseModel],
     belief,
     views,
-    planner: str = "sampled",
-    objective: str = "joint",
-    n_samples: int = 256,
-    order: int = 16,
+    config: PlannerConfig = FUSED_PLANNER,
 ) -> jax.Array:
     """:func:`fused_expected_entropy` for each candidate view ``(C, 3)``: the "run all detectors" planner.
+
+    ``config`` as in :func:`fused_expected_entropy`.
 
     Returns
     -------
     ``(C,)`` expected entropies (the same random numbers for every candidate when sampled).
     """
-    models = check_models(models)
-    P.check_planner_inputs(models[0], views=views)
-    check_fused_belief(models, belief)
-    return _fused_expected_entropies(
-        key, models, belief, views, planner, objective, n_samples, order
-    )
+    models, config = check_planning_inputs(models, belief, views, config, FUSED_PLANNERS)
+    return _fused_expected_entropies(key, models, belief, views, config)
 
 
-@partial(jax.jit, static_argnames=("planner", "objective", "n_samples", "order"))
-def _fused_expected_entropies(key, models, belief, views, planner, objective, n_samples, order):
+@partial(jax.jit, static_argnames=("config",))
+def _fused_expected_entropies(key, models, belief, views, config):
     """:func:`fused_expected_entropies` without the input checks (compiled)."""
     views = jnp.asarray(views)
     return jax.vmap(
-        lambda v: _fused_expected_entropy(
-            key, models, belief, v[0], v[1], v[2], planner, objective, n_samples, order
-        )
+        lambda v: _fused_expected_entropy(key, models, belief, v[0], v[1], v[2], config)
     )(views)

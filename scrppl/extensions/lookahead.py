@@ -42,14 +42,21 @@ from scrppl.belief import (
     update,
 )
 from scrppl.models.response import ResponseModel
-from scrppl.views import angular_distance
+from scrppl.planning import PlannerConfig
 
 __all__ = [
+    "TWO_STEP_PLANNER",
     "two_step_value_after",
     "two_step_expected_entropies",
     "sampled_two_step_expected_entropies",
     "choose_view_two_step",
 ]
+
+
+#: The default of the two-step planners: exact (quadrature, 16 nodes); ``n_samples`` is ``M2`` when sampled.
+TWO_STEP_PLANNER = PlannerConfig("quadrature", order=16, n_samples=64)
+#: Inner (second-step) planners of :func:`two_step_value_after` and :func:`choose_view_two_step`.
+TWO_STEP_PLANNERS = ("quadrature", "sampled")
 
 
 def _check_objective(objective: str) -> None:
@@ -75,10 +82,7 @@ def two_step_value_after(
     first: int,
     views,
     valid,
-    planner: str = "quadrature",
-    objective: str = "joint",
-    n_samples: int = 256,
-    order: int = 16,
+    config: PlannerConfig = TWO_STEP_PLANNER,
 ) -> jax.Array:
     """``min_{v2 != v1} E_{f2}[H(b | F, f1, f2)]`` after observing ``f1`` at candidate ``first``.
 
@@ -96,21 +100,20 @@ def two_step_value_after(
         Index of the first view ``v1`` in ``views`` (excluded from the second step).
     views, valid
         Candidate views ``(C, 3)`` and which may be chosen ``(C,)``.
-    planner
-        Inner planner, ``"quadrature"`` or ``"sampled"``.
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    n_samples, order
-        ``M2`` for the sampled inner planner; Gauss-Hermite order of the quadrature one.
+    config
+        The inner planner (:class:`~scrppl.planning.PlannerConfig`): ``"quadrature"`` (Gauss-Hermite
+        ``order``) or ``"sampled"`` (``M2 = n_samples``), and the objective.
 
     Returns
     -------
     Scalar: the best second view's expected entropy, or ``H(b | F, f1)`` if no second view is left.
     """
+    config = P.check_planner_config(config, TWO_STEP_PLANNERS)
     _check_candidates(model, belief, views, valid)
     v1 = views[first]
     b1 = update(model, belief, f1, v1[0], v1[1], v1[2])
-    inner = P.expected_entropies(key, model, b1, views, planner, objective, n_samples, order)
+    inner = P.expected_entropies(key, model, b1, views, config)
+    objective = config.objective
     ok = valid & (jnp.arange(views.shape[0]) != first)
     best = jnp.min(jnp.where(ok, inner, jnp.inf))
     return jnp.where(ok.any(), best, objective_entropy(joint_log_belief(b1), objective))
@@ -160,7 +163,9 @@ def two_step_expected_entropies(
 def _two_step_expected_entropies(model, belief, views, valid, objective, order, inner_order):
     """:func:`two_step_expected_entropies` without the input checks (compiled)."""
     _check_objective(objective)
-    inner_order = order if inner_order is None else inner_order
+    inner = PlannerConfig(
+        "quadrature", objective, order=order if inner_order is None else inner_order
+    )
     views = jnp.asarray(views)
     valid = jnp.asarray(valid, bool)
     x, w = np.polynomial.hermite.hermgauss(order)
@@ -174,18 +179,7 @@ def _two_step_expected_entropies(model, belief, views, valid, objective, order, 
         f1 = (mix.mean.ravel()[:, None] + jnp.sqrt(2.0 * mix.var.ravel())[:, None] * x).ravel()
         wts = (jnp.exp(mix.log_weight.ravel())[:, None] * wq).ravel()
         vals = jax.lax.map(
-            lambda f: two_step_value_after(
-                None,
-                model,
-                belief,
-                f,
-                first,
-                views,
-                valid,
-                "quadrature",
-                objective,
-                order=inner_order,
-            ),
+            lambda f: two_step_value_after(None, model, belief, f, first, views, valid, inner),
             f1,
         )
         return jnp.sum(jnp.where(wts > 0, wts * vals, 0.0))
@@ -255,6 +249,7 @@ def _sampled_two_step_expected_entropies(
     valid = jnp.asarray(valid, bool)
     k_outer, k_inner = jax.random.split(key)
     inner_keys = jax.random.split(k_inner, n_outer)
+    inner = PlannerConfig("sampled", objective, n_samples=n_inner)
 
     def value(first):
         v1 = views[first]
@@ -262,16 +257,7 @@ def _sampled_two_step_expected_entropies(
         f1 = _sample_mixture(k_outer, mix, n_outer)
         vals = jax.lax.map(
             lambda args: two_step_value_after(
-                args[0],
-                model,
-                belief,
-                args[1],
-                first,
-                views,
-                valid,
-                "sampled",
-                objective,
-                n_samples=n_inner,
+                args[0], model, belief, args[1], first, views, valid, inner
             ),
             (inner_keys, f1),
         )
@@ -292,17 +278,14 @@ def choose_view_two_step(
     current,
     visited,
     available,
-    planner: str = "quadrature",
-    objective: str = "joint",
-    mode: str = "azimuth",
-    order: int = 16,
+    config: PlannerConfig = TWO_STEP_PLANNER,
+    *,
     n_outer: int = 64,
-    n_inner: int = 64,
-    motion_cost=0.0,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Choose the next robot view by two-step lookahead (same interface as :func:`scrppl.planning.choose_view`).
 
-    ``V* = argmin_{v1} J(v1) + motion_cost * angular_distance(phi_{v1}, phi)``.
+    ``V* = argmin_{v1} J(v1) + motion_cost * angular_distance(phi_{v1}, phi)``, decided by
+    :func:`scrppl.planning.select_view`.
 
     Parameters
     ----------
@@ -316,19 +299,13 @@ def choose_view_two_step(
         Current robot view ``(phi, e, s)``, integer ``(3,)``.
     visited, available
         Boolean ``(A, E, S)`` masks over robot views.
-    planner
-        ``"quadrature"`` (:func:`two_step_expected_entropies`) or ``"sampled"``
-        (:func:`sampled_two_step_expected_entropies`).
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    mode
-        ``"azimuth"`` or ``"all"`` (see :func:`scrppl.planning.candidate_views`).
-    order
-        Gauss-Hermite order (``"quadrature"``).
-    n_outer, n_inner
-        ``M1``, ``M2`` (``"sampled"``).
-    motion_cost
-        Nats per azimuth bin travelled by the first move.
+    config
+        :class:`~scrppl.planning.PlannerConfig`: ``planner`` ``"quadrature"``
+        (:func:`two_step_expected_entropies`, Gauss-Hermite ``order``) or ``"sampled"``
+        (:func:`sampled_two_step_expected_entropies`, ``M2 = n_samples``), the objective, the candidate
+        ``mode`` and the motion cost (nats per azimuth bin travelled by the first move).
+    n_outer
+        ``M1``, the draws of the first response (``"sampled"``).
 
     Returns
     -------
@@ -339,56 +316,30 @@ def choose_view_two_step(
     scores
         ``(C,)`` score of each candidate (``+inf`` for invalid ones).
     """
+    config = P.check_planner_config(config, TWO_STEP_PLANNERS)
+    if int(n_outer) < 1:
+        raise ValueError(f"n_outer must be a positive integer, got {n_outer!r}")
     P.check_planner_inputs(model, belief, current=current, visited=visited, available=available)
     return _choose_view_two_step(
-        key,
-        model,
-        belief,
-        current,
-        visited,
-        available,
-        planner=planner,
-        objective=objective,
-        mode=mode,
-        order=order,
-        n_outer=n_outer,
-        n_inner=n_inner,
-        motion_cost=motion_cost,
-    )
+        key, model, belief, current, visited, available, config.motion_cost,
+        config=P._compiled_part(config), n_outer=int(n_outer),
+    )  # fmt: skip
 
 
-@partial(
-    jax.jit,
-    static_argnames=("planner", "objective", "mode", "order", "n_outer", "n_inner"),
-)
+@partial(jax.jit, static_argnames=("config", "n_outer"))
 def _choose_view_two_step(
-    key,
-    model,
-    belief,
-    current,
-    visited,
-    available,
-    planner,
-    objective,
-    mode,
-    order,
-    n_outer,
-    n_inner,
-    motion_cost,
+    key, model, belief, current, visited, available, motion_cost, config, n_outer
 ):
     """:func:`choose_view_two_step` without the input checks (compiled)."""
-    views, valid = P.candidate_views(current, visited, available, mode)
-    if planner == "quadrature":
-        h = _two_step_expected_entropies(model, belief, views, valid, objective, order, None)
-    elif planner == "sampled":
-        h = _sampled_two_step_expected_entropies(
-            key, model, belief, views, valid, objective, n_outer, n_inner
+    views, valid = P.candidate_views(current, visited, available, config.mode)
+    if config.planner == "quadrature":
+        h = _two_step_expected_entropies(
+            model, belief, views, valid, config.objective, config.order, None
         )
     else:
-        raise ValueError(
-            f"unknown two-step planner {planner!r}; expected 'quadrature' or 'sampled'"
+        h = _sampled_two_step_expected_entropies(
+            key, model, belief, views, valid, config.objective, n_outer, config.n_samples
         )
-    n_a = model.mu.shape[2]
-    cost = motion_cost * angular_distance(views[:, 0], jnp.asarray(current)[0], n_a)
+    cost = P.travel_cost(views, current, motion_cost, model.mu.shape[2])
     idx, found, scores = P.select_view(h, cost, valid)
     return views[idx], found, scores

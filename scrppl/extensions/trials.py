@@ -27,7 +27,6 @@ Determinism follows the same rule: trial ``i`` uses ``fold_in(key, i)`` and step
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -37,7 +36,7 @@ import numpy as np
 import xarray as xr
 
 from scrppl import planning as P
-from scrppl.belief import FILTERS, OBJECTIVES
+from scrppl.belief import FILTERS
 from scrppl.extensions.detectors import choose_view_and_detector
 from scrppl.extensions.fusion import (
     check_models,
@@ -47,8 +46,10 @@ from scrppl.extensions.fusion import (
     fused_update,
 )
 from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.planning import DEFAULT_PLANNER, PlannerConfig
 from scrppl.responses import validate_response_table
 from scrppl.sim import metrics as M
+from scrppl.sim.runner import run_chunked
 from scrppl.sim.simulator import (
     Trials,
     check_starts,
@@ -56,7 +57,7 @@ from scrppl.sim.simulator import (
     robot_frame,
     transformed_scores,
 )
-from scrppl.views import angular_distance, check_mask_shape
+from scrppl.views import check_mask_shape
 
 __all__ = [
     "MultiTrials",
@@ -239,16 +240,11 @@ def run_multi_trial(
     start,
     costs=None,
     cost_weight=0.0,
-    motion_cost=0.0,
     *,
+    config: PlannerConfig = DEFAULT_PLANNER,
     policy: str = "fuse",
     filter: str = "naive_bayes",
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
     n_steps: int = 8,
-    n_samples: int = 256,
-    order: int = 32,
 ) -> MultiTrialRecord:
     """Run one multi-detector trial (pure, traceable; :func:`run_multi_trials` is the checked batch).
 
@@ -268,10 +264,8 @@ def run_multi_trial(
         Start robot view ``(phi0, e0, s0)``.
     costs, cost_weight
         Per-detector costs ``(D,)`` and nats per unit cost (``"choose"`` policy).
-    motion_cost
-        Nats per azimuth bin travelled.
-    policy, filter, planner, objective, mode, n_steps, n_samples, order
-        See :func:`run_multi_trials`.
+    config, policy, filter, n_steps
+        See :func:`run_multi_trials` (here ``config.motion_cost`` may be a traced value).
 
     Returns
     -------
@@ -305,14 +299,12 @@ def run_multi_trial(
         def step(carry, t):
             belief, visited, current = carry
             k = jax.random.fold_in(key, t)
-            views, valid = P.candidate_views(current, visited, avail_r, mode)
-            if planner == "random":
+            views, valid = P.candidate_views(current, visited, avail_r, config.mode)
+            if config.planner == "random":
                 idx, found = P.random_unseen_view(k, valid)
             else:
-                h = fused_expected_entropies(
-                    k, models, belief, views, planner, objective, n_samples, order
-                )
-                cost = motion_cost * angular_distance(views[:, 0], current[0], n_a)
+                h = fused_expected_entropies(k, models, belief, views, config)
+                cost = P.travel_cost(views, current, config.motion_cost, n_a)
                 idx, found, _ = P.select_view(h, cost, valid)
             view = jnp.where(found, views[idx].astype(jnp.int32), current)
             belief, f, used = observe(belief, view, all_det, found)
@@ -333,14 +325,9 @@ def run_multi_trial(
                 current,
                 visited,
                 allowed,
-                costs,
-                cost_weight,
-                planner,
-                objective,
-                mode,
-                n_samples,
-                order,
-                motion_cost,
+                config,
+                costs=costs,
+                cost_weight=cost_weight,
             )
             view = jnp.where(found, view.astype(jnp.int32), current)
             mask = jnp.arange(n_det) == det
@@ -372,39 +359,44 @@ def run_multi_trial(
     return MultiTrialRecord(*(jnp.concatenate(x) for x in zip(*parts, strict=True)))
 
 
-@functools.lru_cache(maxsize=32)
-def _compiled(static: tuple):
-    options = dict(static)
-
-    def run(keys, models, responses, available, pose, start, costs, cost_weight, motion_cost):
-        return jax.vmap(
-            lambda k, r, a, p, s: run_multi_trial(
-                k, models, r, a, p, s, costs, cost_weight, motion_cost, **options
-            )
-        )(keys, responses, available, pose, start)
-
-    return jax.jit(run)
+def _multi_trial(
+    key,
+    models,
+    costs,
+    cost_weight,
+    motion_cost,
+    responses,
+    available,
+    pose,
+    start,
+    *,
+    config,
+    **options,
+):
+    """:func:`run_multi_trial` with the motion cost as a (traced) value beside the compiled ``config``."""
+    config = config._replace(motion_cost=motion_cost)
+    return run_multi_trial(
+        key, models, responses, available, pose, start, costs, cost_weight, config=config, **options
+    )
 
 
 def run_multi_trials(
     key: jax.Array,
     models: Sequence[ResponseModel],
     trials: MultiTrials,
+    config: PlannerConfig = DEFAULT_PLANNER,
     *,
     policy: str = "fuse",
     filter: str = "naive_bayes",
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
     n_steps: int | None = None,
-    n_samples: int = 256,
-    order: int = 32,
     costs=None,
     cost_weight: float = 0.0,
-    motion_cost: float = 0.0,
     chunk_size: int = 256,
+    batch_size: int = 1,
+    devices: int | None = None,
+    progress: bool = False,
 ) -> MultiTrialRecord:
-    """Run every trial with several detectors under one policy, filter and planner.
+    """Run every trial with several detectors under one policy, filter and planner configuration.
 
     Parameters
     ----------
@@ -414,28 +406,25 @@ def run_multi_trials(
         One response model per detector, in the order of ``trials.responses``' detector axis.
     trials
         The trials (:func:`make_multi_trials`).
+    config
+        :class:`~scrppl.planning.PlannerConfig`: the planner (``"random"``, ``"sampled"`` or
+        ``"quadrature"``; ``"choose"`` also takes ``"plug_in"``), the objective, the candidate ``mode``
+        (``"azimuth"`` or ``"all"``), ``M``, the Gauss-Hermite order (per detector) and the motion cost
+        in nats per azimuth bin travelled.
     policy
         ``"fuse"`` (every detector at each chosen view) or ``"choose"`` (one chosen (view, detector)
         pair per step).
     filter
         ``"naive_bayes"`` or ``"instance"`` (fused, :mod:`scrppl.extensions.fusion`).
-    planner
-        ``"random"``, ``"sampled"`` or ``"quadrature"`` (``"choose"`` also takes ``"plug_in"``).
-    objective
-        ``"joint"``, ``"class"`` or ``"pose"``.
-    mode
-        Candidate views: ``"azimuth"`` or ``"all"``.
     n_steps
         Steps per trial (default: the number of candidate views ``C``; at most ``C`` for ``"fuse"`` and
         ``C * D`` for ``"choose"``).
-    n_samples, order
-        ``M`` of the sampled planner; Gauss-Hermite order of the quadrature planner (per detector).
     costs, cost_weight
         Per-detector costs ``(D,)`` and nats per unit cost (``"choose"`` only).
-    motion_cost
-        Nats per azimuth bin travelled.
-    chunk_size
-        Trials per compiled call (the last chunk is padded with repeats).
+    chunk_size, batch_size, devices, progress
+        As in :func:`scrppl.sim.run_trials`: trials per compiled call (the last chunk is padded with
+        repeats), trials vectorised together, CPU devices to split each chunk over, a progress bar. The
+        trials are run by the single-detector runner's driver (:func:`scrppl.sim.runner.run_chunked`).
 
     Returns
     -------
@@ -450,13 +439,8 @@ def run_multi_trials(
         raise ValueError(f"unknown policy {policy!r}; expected one of {POLICIES}")
     if filter not in FILTERS:
         raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
-    if objective not in OBJECTIVES:
-        raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
     allowed = ("random", "sampled", "quadrature") + (("plug_in",) if policy == "choose" else ())
-    if planner not in allowed:
-        raise ValueError(f"unknown planner {planner!r} for policy {policy!r}; expected {allowed}")
-    if mode not in P.MODES:
-        raise ValueError(f"unknown candidate mode {mode!r}; expected one of {P.MODES}")
+    config = P.check_planner_config(config, allowed)
     resp_shape = tuple(np.shape(trials.responses))
     check_mask_shape(
         trials.available,
@@ -468,7 +452,7 @@ def run_multi_trials(
     for m in models:
         check_response_model(m, grid_shape)
     n_a, n_e, n_s = grid_shape
-    n_cand = n_a if mode == "azimuth" else n_a * n_e * n_s
+    n_cand = n_a if config.mode == "azimuth" else n_a * n_e * n_s
     max_steps = n_cand if policy == "fuse" else n_cand * n_det
     n_steps = n_cand if n_steps is None else int(n_steps)
     if not 1 <= n_steps <= max_steps:
@@ -476,40 +460,31 @@ def run_multi_trials(
     costs = np.zeros(n_det) if costs is None else np.asarray(costs, np.float64)
     if costs.shape != (n_det,) or not np.isfinite(costs).all():
         raise ValueError(f"costs must be {n_det} finite numbers, got {costs!r}")
-    n = trials.n_trials
     check_starts(trials.available, trials.pose, trials.start)
     static = (
         ("policy", policy),
         ("filter", filter),
-        ("planner", planner),
-        ("objective", objective),
-        ("mode", mode),
+        ("config", P._compiled_part(config)),  # the motion cost is passed as a value
         ("n_steps", n_steps),
-        ("n_samples", int(n_samples)),
-        ("order", int(order)),
     )
-    runner = _compiled(static)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n))
-    chunk = max(1, min(int(chunk_size), n))
-    outs = []
-    for lo in range(0, n, chunk):
-        sel = np.minimum(np.arange(lo, lo + chunk), n - 1)
-        out = runner(
-            keys[sel],
+    out = run_chunked(
+        _multi_trial,
+        static,
+        key,
+        (
             models,
-            trials.responses[sel],
-            trials.available[sel],
-            trials.pose[sel],
-            trials.start[sel],
-            jnp.asarray(costs, jnp.float32),
-            jnp.float32(cost_weight),
-            jnp.float32(motion_cost),
-        )
-        keep = min(chunk, n - lo)
-        outs.append([np.asarray(x[:keep]) for x in out])
-    return MultiTrialRecord(
-        *(jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True))
+            np.asarray(costs, np.float32),
+            np.float32(cost_weight),
+            np.float32(config.motion_cost),
+        ),
+        (trials.responses, trials.available, trials.pose, trials.start),
+        chunk_size=chunk_size,
+        batch_size=batch_size,
+        devices=devices,
+        progress=progress,
+        desc=f"{policy}/{filter}/{config.planner}",
     )
+    return MultiTrialRecord(*out)
 
 
 def multi_trial_metrics(

@@ -9,7 +9,8 @@
 * :mod:`~scrppl.models.evaluate` -- held-out log predictive density and calibration;
 * :mod:`~scrppl.models.simulate` -- response tables from known parameters;
 * :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
-* :func:`load_response_model` -- what the rest of the pipeline calls.
+* :func:`load_response_model` -- what the rest of the pipeline calls: a saved fit as a
+  :class:`~scrppl.models.io.ViewpointModel` (the predictive ``ResponseModel`` with its transform and grid).
 
 The submodules that import NumPyro are loaded on first use, so ``import scrppl.models`` stays light and
 the caller can still configure host devices before JAX initialises.
@@ -43,6 +44,8 @@ __all__ = [
     "SamplerConfig",
     "to_response_model",
     "load_response_model",
+    "ViewpointModel",
+    "MODEL_VERSION",
     "model_path",
     "save_gaussian",
     "save_posterior",
@@ -69,6 +72,8 @@ _LAZY = {
     "SamplerConfig": "mcmc",
     "to_response_model": "predictive",
     "load_response_model": "io",
+    "ViewpointModel": "io",
+    "MODEL_VERSION": "io",
     "model_path": "io",
     "save_gaussian": "io",
     "save_posterior": "io",

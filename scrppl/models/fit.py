@@ -25,13 +25,11 @@ from scrppl.models.hierarchical import (
     model_args,
     standardisation,
 )
+from scrppl.models.io import MODEL_VERSION
 from scrppl.models.mcmc import DEFAULT_SAMPLER, SamplerConfig, run_nuts
 
 __all__ = ["fit_hierarchical", "DIMS", "RETRY_ACCEPT", "MODEL_VERSION"]
 
-#: Version of the hierarchical model, saved with every fit; ``scrppl fit`` refits a saved model of
-#: another version (2: noise floor for counts, per-class parameterisation).
-MODEL_VERSION = 2
 
 #: Acceptance target of the second attempt of a fit that failed its diagnostics. On the default table
 #: sift/cellphone (zero-or-many inlier counts, the model's worst fit) had 7-9 divergences at 0.9-0.95

@@ -13,9 +13,14 @@ Gaussian and the hierarchical Bayesian model fitted by MCMC -- is summarised by 
 so that for draw ``n`` and a *new* instance, ``f = mu + u + sigma * eps``. The paper's model is the
 special case ``N = 1``, ``tau = 0``.
 
-The belief filters and planners consume a ``ResponseModel`` only through :func:`log_prob` and
-:func:`sample` (naive Bayes) or through the per-draw arrays (the instance-aware filter), so both kinds of
-model plug into every filter and planner.
+The belief filters and planners read the per-draw arrays directly (:mod:`scrppl.belief` marginalises
+the draws and, for the instance-aware filter, tracks each draw's instance effect with a Kalman update),
+with the one Gaussian density :func:`normal_log_density`; :func:`log_prob` and :func:`sample` are the
+predictive of a single response, used to check and simulate. Both kinds of model plug into every filter
+and planner.
+
+:meth:`ResponseModel.from_profile` builds a small model by hand from a mean response over relative
+azimuth (the README's example and the book's first chapters).
 
 Class index convention: ``o = 0`` is "target absent" (negatives), ``o = 1`` "target present".
 """
@@ -75,6 +80,53 @@ class ResponseModel(NamedTuple):
         """``(A, E, S)`` of the view grid the model was fitted on."""
         return tuple(self.mu.shape[2:5])
 
+    @classmethod
+    def from_profile(cls, present, absent=0.0, sigma=1.0, tau=0.0) -> ResponseModel:
+        """A one-draw model at one elevation and scale, from mean responses over relative azimuth.
+
+        Parameters
+        ----------
+        present
+            Mean response of the target class (``o = 1``) at each relative azimuth, shape ``(A,)``.
+        absent
+            Mean response when the target is absent (``o = 0``): a number or shape ``(A,)``.
+        sigma
+            Noise sd: a number, or ``(2, A)`` (absent, present) per view.
+        tau
+            Instance-effect sd: a number or ``(2,)``; ``0`` gives the paper's model.
+
+        Returns
+        -------
+        ResponseModel
+            ``mu``, ``sigma`` of shape ``(1, 2, A, 1, 1)``, ``tau`` of shape ``(1, 2)``.
+
+        Examples
+        --------
+        >>> m = ResponseModel.from_profile([0.5, 1, 2, 1, 0.5, 1, 2, 1], sigma=0.5)
+        >>> m.mu.shape
+        (1, 2, 8, 1, 1)
+        """
+        present = np.asarray(present, dtype=np.float64)
+        if present.ndim != 1 or present.size == 0:
+            raise ValueError(f"present must be a 1-D profile over azimuth, got shape {present.shape}")
+        n_az = present.size
+        try:
+            mean = np.stack([np.broadcast_to(np.asarray(absent, np.float64), (n_az,)), present])
+            sd = np.broadcast_to(np.asarray(sigma, np.float64), (2, n_az))
+            inst = np.broadcast_to(np.asarray(tau, np.float64), (2,))
+        except ValueError:
+            raise ValueError(
+                f"absent must be a number or ({n_az},), sigma a number or (2, {n_az}), tau a number or "
+                f"(2,); got shapes {np.shape(absent)}, {np.shape(sigma)}, {np.shape(tau)}"
+            ) from None
+        model = cls(
+            jnp.asarray(mean[None, :, :, None, None]),
+            jnp.asarray(np.array(sd)[None, :, :, None, None]),
+            jnp.asarray(np.array(inst)[None]),
+        )
+        check_response_model(model)
+        return model
+
 
 def check_response_model(
     model: ResponseModel, grid_shape: tuple[int, int, int] | None = None
@@ -97,8 +149,11 @@ def check_response_model(
     try:
         mu, sigma, tau = model.mu, model.sigma, model.tau
     except AttributeError:
+        hint = (
+            ": pass its .response_model" if hasattr(model, "response_model") else ""
+        )  # a loaded ViewpointModel
         raise ValueError(
-            f"expected a ResponseModel (mu, sigma, tau), got {type(model).__name__}"
+            f"expected a ResponseModel (mu, sigma, tau), got {type(model).__name__}{hint}"
         ) from None
     refs = _CHECKED.get((id(mu), id(sigma), id(tau)))
     if refs is None or refs[0]() is not mu or refs[1]() is not sigma or refs[2]() is not tau:

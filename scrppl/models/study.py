@@ -17,20 +17,23 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pandas as pd
 import xarray as xr
 from tqdm.auto import tqdm
 
-from scrppl._io import atomic_path
+from scrppl._io import CorruptFileError, atomic_path, read_json
 from scrppl.models.data import extract_view_data
 from scrppl.models.diagnostics import THRESHOLDS
 from scrppl.models.evaluate import evaluate_models
-from scrppl.models.fit import MODEL_VERSION, fit_hierarchical
+from scrppl.models.fit import fit_hierarchical
 from scrppl.models.gaussian import fit_gaussian
 from scrppl.models.io import (
+    is_current_version,
     load_posterior,
     load_response_model,
     model_path,
@@ -41,6 +44,9 @@ from scrppl.models.mcmc import SamplerConfig
 from scrppl.models.predictive import to_response_model
 from scrppl.models.response import ResponseModel
 from scrppl.responses import load_response_table
+
+if TYPE_CHECKING:
+    from scrppl.parallel import Executor
 
 __all__ = [
     "PAPER_TARGETS",
@@ -161,7 +167,7 @@ def fit_pair(
 
     Both are saved under ``models_dir`` (:func:`~scrppl.models.io.model_path`). A saved fit newer than
     ``reuse_since`` is loaded instead -- the hierarchical one only if it was fitted by this
-    :data:`~scrppl.models.fit.MODEL_VERSION`.
+    :data:`~scrppl.models.io.MODEL_VERSION`.
 
     Parameters
     ----------
@@ -196,7 +202,7 @@ def fit_pair(
         g, n_obs = fit_gaussian(data)
         save_gaussian(gpath, g, n_obs, meta)
     tree = load_posterior(hpath) if _is_current(hpath, reuse_since) else None
-    if tree is not None and json.loads(tree.attrs["meta"]).get("model_version") != MODEL_VERSION:
+    if tree is not None and not is_current_version(tree):
         tree = None  # fitted by another version of the model
     if tree is None:
         # diagnostics are reported by the caller (fit_study collects them), hence warn=False
@@ -206,9 +212,31 @@ def fit_pair(
     fit_meta = json.loads(tree.attrs["meta"])
     report["noncentered"] = fit_meta.get("noncentered")
     report["attempts"] = fit_meta.get("attempts", [])
-    gauss, _ = load_response_model(models_dir, "gaussian", detector, target)
+    gauss = load_response_model(models_dir, "gaussian", detector, target).response_model
     pair = FittedPair(gauss, to_response_model(tree), tree, meta["transform"])
     return pair, report
+
+
+def _fit_task(
+    job: tuple[int, tuple[str, str]],
+    raw_key: np.ndarray,
+    impl: str | None,
+    table: xr.Dataset,
+    models_dir: Path,
+    config: SamplerConfig,
+    stamp: float | None,
+) -> tuple[FittedPair, dict]:
+    """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` with ``fold_in(key, j)``.
+
+    The key arrives as its raw data (``impl`` names a typed key's implementation), so that the task
+    reaches the worker without JAX (:mod:`scrppl.parallel` sets the worker's JAX flags first).
+    """
+    j, (det, tgt) = job
+    key = jnp.asarray(raw_key) if impl is None else jax.random.wrap_key_data(raw_key, impl=impl)
+    return fit_pair(
+        jax.random.fold_in(key, j), table, models_dir, det, tgt, config,
+        reuse_since=stamp, progress=False,
+    )  # fmt: skip
 
 
 def failed_fits(
@@ -232,6 +260,7 @@ def fit_study(
     targets: Sequence[str] | None = None,
     force: bool = False,
     progress: bool = True,
+    executor: Executor | None = None,
 ) -> FitStudy:
     """Fit both viewpoint models of every detector x target, check them and score them held out.
 
@@ -256,6 +285,10 @@ def fit_study(
         Refit even current models.
     progress
         Show progress bars.
+    executor
+        A Dask executor (:func:`scrppl.parallel.executor`): fit the pairs on a cluster, one task per
+        detector x target, with the same keys and so the same draws; each task saves its fits (the
+        workers must see ``models_dir``), so a rerun reuses the pairs already fitted. ``None`` fits here.
 
     Returns
     -------
@@ -268,21 +301,40 @@ def fit_study(
     stamp = None if force else responses.stat().st_mtime
     has_test = (table["split"].values.astype(str) == "test").any()
     diag_path = models_dir / "diagnostics.json"
-    diagnostics = json.loads(diag_path.read_text()) if diag_path.exists() else {}
+    try:
+        diagnostics = read_json(diag_path, "MCMC diagnostics") if diag_path.exists() else {}
+    except CorruptFileError:
+        diagnostics = {}  # unreadable: every fit's report is collected again and the file rewritten
     diagnostics = {k: v for k, v in diagnostics.items() if k != "thresholds"}
     heldout, fits = [], {}
     jobs = [(d, t) for d in detectors for t in targets]
-    for job, (det, tgt) in enumerate(tqdm(jobs, desc="scrppl fit", disable=not progress)):
-        pair, report = fit_pair(
-            jax.random.fold_in(key, job),
-            table,
-            models_dir,
-            det,
-            tgt,
-            config,
-            reuse_since=stamp,
-            progress=progress,
+    if executor is not None and executor.distributed:
+        # one task per pair; the key travels as its raw data (see _fit_task)
+        raw = np.asarray(jax.random.key_data(key))
+        impl = (
+            str(jax.random.key_impl(key))
+            if jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+            else None
         )
+        done = executor.map(
+            _fit_task, list(enumerate(jobs)), raw, impl, table, models_dir, config, stamp,
+            desc="scrppl fit", progress=progress,
+        )  # fmt: skip
+    else:
+        done = (
+            fit_pair(
+                jax.random.fold_in(key, job),
+                table,
+                models_dir,
+                det,
+                tgt,
+                config,
+                reuse_since=stamp,
+                progress=progress,
+            )
+            for job, (det, tgt) in enumerate(tqdm(jobs, desc="scrppl fit", disable=not progress))
+        )
+    for (det, tgt), (pair, report) in zip(jobs, done, strict=True):
         diagnostics[f"{det}/{tgt}"] = report
         fits[(det, tgt)] = pair
         if has_test:

@@ -5,9 +5,11 @@
 * :mod:`scrppl.plotting.models` -- Figs. 2-3 (polar viewpoint detection functions), MCMC trace, forest and
   rank plots, instance effects, prior and posterior predictive checks;
 * :mod:`scrppl.plotting.belief` -- Fig. 4 (posterior evolution), Fig. 5 (planner comparison), calibration,
-  repeated views, expected entropy per candidate view and the sampling error of eq. 5.
+  repeated views, expected entropy per candidate view and the sampling error of eq. 5;
+* :mod:`scrppl.plotting.kway` -- K-way recognition: accuracy against views, confusion matrices.
 """
 
+from scrppl.plotting._save import save_figure
 from scrppl.plotting.belief import (
     plot_calibration,
     plot_expected_entropies,
@@ -19,12 +21,17 @@ from scrppl.plotting.belief import (
 )
 from scrppl.plotting.dataset import (
     contact_sheet,
-    save_figure,
     show_image,
     show_images,
     view_sphere,
 )
 from scrppl.plotting.detectors import plot_mean_response_by_azimuth, plot_response_over_azimuth
+from scrppl.plotting.kway import (
+    plot_kway_accuracy,
+    plot_kway_confusion,
+    plot_kway_confusions,
+    plot_kway_metric,
+)
 from scrppl.plotting.models import (
     plot_fit_forest,
     plot_fit_rank,
@@ -59,4 +66,8 @@ __all__ = [
     "plot_expected_entropies",
     "plot_sampling_error",
     "plot_step_comparison",
+    "plot_kway_metric",
+    "plot_kway_accuracy",
+    "plot_kway_confusion",
+    "plot_kway_confusions",
 ]

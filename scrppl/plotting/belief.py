@@ -13,6 +13,8 @@ import xarray as xr
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from scrppl.plotting._save import save_figure
+
 __all__ = [
     "plot_posterior_evolution",
     "plot_planner_comparison",
@@ -118,7 +120,7 @@ def plot_posterior_evolution(
 
 
 def plot_planner_comparison(
-    summary: xr.Dataset, filter: str | None = None, title: str = ""
+    summary: xr.Dataset, method: str | None = None, title: str = ""
 ) -> Figure:
     """Fig. 5: entropy planning against random views, with bootstrap 95% intervals.
 
@@ -129,9 +131,9 @@ def plot_planner_comparison(
     ----------
     summary
         Output of :func:`scrppl.sim.summarise` (variables ``tp_minus_tn[_lo|_hi]``,
-        ``class_entropy[_lo|_hi]``, dims ``(filter, planner, step)``).
-    filter
-        Which filter/method to plot (default: the first).
+        ``class_entropy[_lo|_hi]``, dims ``(method, planner, step)``).
+    method
+        Which method to plot (default: the first).
     title
         Figure title.
 
@@ -139,11 +141,11 @@ def plot_planner_comparison(
     -------
     matplotlib.figure.Figure
     """
-    names = summary["filter"].values.tolist()
-    filter = names[0] if filter is None else filter
-    if filter not in names:
-        raise ValueError(f"filter {filter!r} is not in the summary ({names})")
-    sub = summary.sel({"filter": filter})
+    names = summary["method"].values.tolist()
+    method = names[0] if method is None else method
+    if method not in names:
+        raise ValueError(f"method {method!r} is not in the summary ({names})")
+    sub = summary.sel({"method": method})
     steps = sub["step"].values
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     panels = (
@@ -165,27 +167,30 @@ def plot_planner_comparison(
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(
-        title or f"{filter}: entropy planning vs random (95% bootstrap intervals)", fontsize=10
+        title or f"{method}: entropy planning vs random (95% bootstrap intervals)", fontsize=10
     )
     fig.tight_layout()
     return fig
 
 
-def plot_calibration(calibration: Mapping[str, Mapping], title: str = "") -> Figure:
-    """Reliability diagram of ``p(o = present | F)`` for each filter, with its expected calibration error.
+def plot_calibration(calibration: Mapping[str, Mapping], title: str = "", *, ax=None) -> Figure:
+    """Reliability diagram of ``p(o = present | F)`` for each method, with its expected calibration error.
 
     Parameters
     ----------
     calibration
-        Output of :func:`scrppl.sim.calibration`: per filter, ``ece``, ``mean_p``, ``frac``, ``count``.
+        Output of :func:`scrppl.sim.calibration` (or :func:`scrppl.sim.pooled_calibration`): per
+        method, ``ece``, ``mean_p``, ``frac``, ``count``.
     title
-        Figure title.
+        Panel title.
+    ax
+        Draw into these axes instead of a new figure.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    fig, ax = plt.subplots(figsize=(4.6, 4.4))
+    fig, ax = _new_axes(ax, (4.6, 4.4))
     ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="perfect calibration")
     for i, (name, cal) in enumerate(calibration.items()):
         mean_p = np.array([np.nan if v is None else v for v in cal["mean_p"]], dtype=float)
@@ -503,7 +508,7 @@ def save_study_figures(study, fig_dir) -> list:
     n_trials = study.summary["settings"]["trials"]
     figures = []
     for target, summary in study.summaries.items():
-        for name in summary["filter"].values.tolist():
+        for name in summary["method"].values.tolist():
             title = f"{detector} / {target} / {name}: {n_trials} trials"
             fig = plot_planner_comparison(summary, name, title=title)
             figures.append((fig, f"fig5-{target}-{name.replace('+', '-')}.png"))
@@ -515,7 +520,5 @@ def save_study_figures(study, fig_dir) -> list:
     figures.append((plot_calibration(study.calibration, title=title), "calibration.png"))
     written = []
     for fig, name in figures:
-        fig.savefig(fig_dir / name, dpi=120)
-        plt.close(fig)
-        written.append(fig_dir / name)
+        written.append(save_figure(fig, fig_dir / name, close=True))
     return written

@@ -7,7 +7,6 @@ changes appearance with azimuth, elevation and distance, and a detector's respon
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import matplotlib.pyplot as plt
@@ -17,8 +16,6 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from scrppl._io import atomic_path
-
 __all__ = [
     "contact_sheet",
     "view_sphere",
@@ -26,21 +23,7 @@ __all__ = [
     "show_images",
     "sheet_instances",
     "camera_positions",
-    "save_figure",
 ]
-
-
-def save_figure(fig: Figure, path: str | Path, *, dpi: int = 120, close: bool = False) -> Path:
-    """Save ``fig`` as a PNG atomically (a crash never leaves a half-written file) and return the path.
-
-    Parent folders are created; ``close=True`` also releases the figure (for scripts making many).
-    """
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight")
-    if close:
-        plt.close(fig)
-    return path
 
 
 def sheet_instances(

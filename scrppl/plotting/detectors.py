@@ -211,18 +211,15 @@ def save_detection_figures(dataset, detectors, table: xr.Dataset, folder) -> lis
     """
     from pathlib import Path
 
-    from scrppl._io import atomic_path
     from scrppl.detectors.study import fig1_example, fig1_family
+    from scrppl.plotting._save import save_figure
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
 
     def save(fig, path):
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(save_figure(fig, path, close=True))
 
     fam = fig1_family(detectors)
     for target, det in detectors[fam].items():

@@ -25,6 +25,7 @@ from scipy.stats import norm
 
 from scrppl.models.data import ViewData
 from scrppl.models.response import ResponseModel, log_prob, predictive_moments
+from scrppl.plotting._save import save_figure
 
 __all__ = [
     "plot_viewpoint_functions",
@@ -35,12 +36,17 @@ __all__ = [
     "plot_prior_predictive",
     "plot_predictive_densities",
     "plot_predictive_sample_check",
-    "save_figure",
     "save_fit_figures",
 ]
 
 
-def _curve(model: ResponseModel, o: int, e: int, s: int, z: float):
+def _response_model(model) -> ResponseModel:
+    """The ``ResponseModel`` of a loaded :class:`~scrppl.models.io.ViewpointModel`, or ``model`` itself."""
+    return getattr(model, "response_model", model)
+
+
+def _curve(model, o: int, e: int, s: int, z: float):
+    model = _response_model(model)
     n_az = model.mu.shape[2]
     # indices broadcast to one shape: predictive_moments gathers tau[:, o] without broadcasting o
     a = np.arange(n_az)
@@ -51,33 +57,73 @@ def _curve(model: ResponseModel, o: int, e: int, s: int, z: float):
     return mean[close], (mean - z * sd)[close], (mean + z * sd)[close]
 
 
+def _viewpoint_rows(models, gaussian, titles) -> list[tuple[str, object, object]]:
+    """``(title, model, gaussian)`` rows from the accepted forms of :func:`plot_viewpoint_functions`."""
+    if isinstance(models, tuple | list) and models and all(
+        isinstance(r, tuple) and len(r) == 3 and isinstance(r[0], str) for r in models
+    ):
+        if gaussian is not None or titles is not None:
+            raise ValueError("give either (title, model, gaussian) rows or gaussian=/titles=, not both")
+        return list(models)
+    if hasattr(models, "mu") or hasattr(models, "response_model"):
+        models = [models]
+    models = list(models)
+    n = len(models)
+    if gaussian is None or hasattr(gaussian, "mu") or hasattr(gaussian, "response_model"):
+        gaussian = [gaussian] * n
+    if titles is None:
+        titles = [f"{m.detector} / {m.target}" if hasattr(m, "target") else "" for m in models]
+    gaussian, titles = list(gaussian), list(titles)
+    if not (len(gaussian) == len(titles) == n):
+        raise ValueError(
+            f"{n} models but {len(gaussian)} gaussian overlays and {len(titles)} titles: give one per model"
+        )
+    return list(zip(titles, models, gaussian, strict=True))
+
+
 def plot_viewpoint_functions(
-    rows: list[tuple[str, ResponseModel, ResponseModel | None]],
+    models,
     *,
+    gaussian=None,
+    titles: list[str] | None = None,
     elevation: int = 0,
     scale: int = 0,
     interval: float = 0.9,
-    radial_label: str = "response",
+    radial_label: str | None = None,
 ) -> plt.Figure:
     """Polar viewpoint detection functions, one row per model, positives left and negatives right.
 
     Parameters
     ----------
-    rows
-        ``(title, model, gaussian)`` per row: ``model`` (e.g. a hierarchical posterior predictive,
-        ``mu (N, 2, A, E, S)``) is drawn with its band; ``gaussian`` (the paper's model, or ``None``) is
-        overlaid.
+    models
+        A model -- a loaded :class:`~scrppl.models.io.ViewpointModel` (e.g. ``run.model(...)``) or a
+        :class:`~scrppl.models.response.ResponseModel` -- or a list of them (one row each), drawn with its
+        predictive band. Also accepted: a list of ``(title, model, gaussian)`` rows.
+    gaussian
+        Overlaid as dashed lines (the paper's model): one model for a single row, or a list with one per
+        row (``None`` entries draw none).
+    titles
+        Row titles; by default ``"<detector> / <target>"`` of a loaded model.
     elevation, scale
         The view-grid elevation and scale indices drawn.
     interval
         Central probability of the bands.
     radial_label
-        What the radius shows (e.g. the response transform).
+        What the radius shows; by default "response", with the transform of a loaded model.
 
     Returns
     -------
     The matplotlib figure.
+
+    Examples
+    --------
+    >>> m = run.model("hierarchical", "dpm", "car")  # doctest: +SKIP
+    >>> plot_viewpoint_functions(m, gaussian=run.model("gaussian", "dpm", "car"))  # doctest: +SKIP
     """
+    rows = _viewpoint_rows(models, gaussian, titles)
+    if radial_label is None:
+        transform = next((getattr(m, "transform", None) for _, m, _ in rows), None)
+        radial_label = "response" if transform in (None, "identity") else f"response ({transform} scale)"
     if not rows:
         raise ValueError("plot_viewpoint_functions needs at least one model")
     z = float(norm.ppf(0.5 + interval / 2))
@@ -89,7 +135,7 @@ def plot_viewpoint_functions(
         squeeze=False,
     )
     for r, (title, model, gauss) in enumerate(rows):
-        n_az = model.mu.shape[2]
+        n_az = _response_model(model).mu.shape[2]
         theta = np.deg2rad(np.r_[np.arange(n_az), 0] * 360.0 / n_az)
         curves = {}
         for col, o in enumerate((1, 0)):
@@ -365,12 +411,12 @@ def plot_prior_predictive(
     return fig
 
 
-def _density(model: ResponseModel, grid: np.ndarray, o: int, a: int, e: int, s: int) -> np.ndarray:
-    return np.exp(np.asarray(log_prob(model, grid, o, a, e, s), dtype=float))
+def _density(model, grid: np.ndarray, o: int, a: int, e: int, s: int) -> np.ndarray:
+    return np.exp(np.asarray(log_prob(_response_model(model), grid, o, a, e, s), dtype=float))
 
 
 def plot_predictive_densities(
-    models: Mapping[str, ResponseModel],
+    models: Mapping[str, object],
     views: Mapping[str, tuple[int, int, int]],
     *,
     responses: Mapping[str, Mapping[int, np.ndarray]] | None = None,
@@ -388,7 +434,8 @@ def plot_predictive_densities(
     Parameters
     ----------
     models
-        ``{label: ResponseModel}``, e.g. the hierarchical posterior predictive and the paper's Gaussian.
+        ``{label: model}`` (``ResponseModel`` or loaded ``ViewpointModel``), e.g. the hierarchical
+        posterior predictive and the paper's Gaussian.
     views
         ``{panel title: (a, e, s)}``: relative azimuth, elevation and scale indices.
     responses
@@ -410,6 +457,7 @@ def plot_predictive_densities(
     fig, axs = _axes(axes, len(views), (5.0 * len(views), 3.6))
     lo, hi = np.inf, -np.inf
     for model in models.values():
+        model = _response_model(model)
         for a, e, s in views.values():
             for o in (0, 1):
                 m, v = predictive_moments(model, o, a, e, s)
@@ -452,7 +500,7 @@ def plot_predictive_densities(
 
 def plot_predictive_sample_check(
     samples,
-    model: ResponseModel,
+    model,
     o: int,
     a: int,
     e: int = 0,
@@ -474,7 +522,7 @@ def plot_predictive_sample_check(
     samples
         Sampled responses, any shape (flattened).
     model
-        The response model they were drawn from.
+        The response model they were drawn from (a ``ResponseModel`` or a loaded ``ViewpointModel``).
     o, a, e, s
         Class and view indices.
     bins
@@ -513,19 +561,6 @@ def plot_predictive_sample_check(
     return fig
 
 
-def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
-    """Save a matplotlib figure or an ArviZ ``PlotCollection`` to ``path`` and close it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if isinstance(fig, plt.Figure):
-        fig.savefig(path, dpi=dpi, bbox_inches="tight")
-        plt.close(fig)
-    else:
-        fig.savefig(path, dpi=dpi)
-        plt.close("all")
-    return path
-
-
 #: Parameters shown in the trace and forest plots of :func:`save_fit_figures`, when in the posterior.
 SUMMARY_PARAMETERS = ("alpha", "eta", "sigma_class", "instance_sd", "category_sd")
 
@@ -560,16 +595,23 @@ def save_fit_figures(fits: Mapping, targets, fig_dir: str | Path) -> list[Path]:
         number = "fig3" if transforms.default_transform(det) == "anscombe" else "fig2"
         scale = "" if pair.transform == "identity" else f" ({pair.transform} scale)"
         fig = plot_viewpoint_functions(
-            [(f"{det} / {tgt}", pair.hierarchical, pair.gaussian)], radial_label=f"response{scale}"
+            pair.hierarchical,
+            gaussian=pair.gaussian,
+            titles=[f"{det} / {tgt}"],
+            radial_label=f"response{scale}",
         )
-        written.append(save_figure(fig, fig_dir / f"{number}-{det}-{tgt}.png"))
+        written.append(save_figure(fig, fig_dir / f"{number}-{det}-{tgt}.png", close=True))
     if fits:
         (det, tgt), pair = next(iter(fits.items()))
         names = [n for n in SUMMARY_PARAMETERS if n in pair.posterior["posterior"].data_vars]
         written.append(
-            save_figure(plot_fit_trace(pair.posterior, names), fig_dir / f"trace-{det}-{tgt}.png")
+            save_figure(
+                plot_fit_trace(pair.posterior, names), fig_dir / f"trace-{det}-{tgt}.png", close=True
+            )
         )
         written.append(
-            save_figure(plot_fit_forest(pair.posterior, names), fig_dir / f"forest-{det}-{tgt}.png")
+            save_figure(
+                plot_fit_forest(pair.posterior, names), fig_dir / f"forest-{det}-{tgt}.png", close=True
+            )
         )
     return written

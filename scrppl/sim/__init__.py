@@ -13,6 +13,7 @@ from scrppl.sim.experiment import (
     calibration,
     compare_planners,
     load_trials,
+    planner_configs,
     run_experiment,
     save_trials,
     summarise,
@@ -34,6 +35,7 @@ from scrppl.sim.study import (
     load_methods,
     pooled_calibration,
     run_study,
+    study_planners,
 )
 
 __all__ = [
@@ -53,6 +55,7 @@ __all__ = [
     "expected_calibration_error",
     "Method",
     "run_experiment",
+    "planner_configs",
     "summarise",
     "compare_planners",
     "calibration",
@@ -64,4 +67,5 @@ __all__ = [
     "pooled_calibration",
     "Study",
     "run_study",
+    "study_planners",
 ]

@@ -2,8 +2,9 @@
 
 :func:`run_experiment` runs every (method, planner) pair on the *same* trials -- same instances, poses,
 start views and keys -- and returns an ``xarray.Dataset`` with the per-step metrics of
-:mod:`scrppl.sim.metrics`. A *method* is a response model with a filter (e.g. the paper's Gaussian with
-naive Bayes, the hierarchical model with the instance-aware filter) and the trials transformed for it.
+:mod:`scrppl.sim.metrics`, dims ``(method, planner, trial, step)``. A *method* is a response model with a
+filter (e.g. the paper's Gaussian with naive Bayes, the hierarchical model with the instance-aware filter)
+and the trials transformed for it; a *planner* is a :class:`scrppl.planning.PlannerConfig`.
 :func:`summarise` adds means and bootstrap intervals, :func:`compare_planners` the paired comparison of
 an entropy planner against the random baseline, and :func:`calibration` the expected calibration error
 of ``p(o | F)``.
@@ -22,6 +23,7 @@ import xarray as xr
 
 from scrppl._io import read_netcdf, write_netcdf
 from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig, check_planner_config
 from scrppl.sim import metrics as M
 from scrppl.sim.runner import run_trials
 from scrppl.sim.simulator import Trials
@@ -34,8 +36,13 @@ __all__ = [
     "calibration",
     "save_trials",
     "load_trials",
+    "planner_configs",
     "STEP_METRICS",
+    "PAPER_PLANNERS",
 ]
+
+#: The paper's comparison (Sec. IV-A): entropy planning (eq. 5, ``M = 256``) against a random unseen view.
+PAPER_PLANNERS = {"sampled": PlannerConfig("sampled"), "random": PlannerConfig("random")}
 
 #: Per-step metrics stored in the experiment dataset.
 STEP_METRICS = ("class_entropy", "p_true", "p_present", "correct", "pose_error", "response_sum")
@@ -60,10 +67,43 @@ class Method(NamedTuple):
     trials: Trials
 
 
+def planner_configs(
+    planners: Mapping[str, PlannerConfig] | Sequence[PlannerConfig],
+) -> dict[str, PlannerConfig]:
+    """Name -> checked :class:`~scrppl.planning.PlannerConfig`, the planners of :func:`run_experiment`.
+
+    A mapping keeps its names; a sequence is named by each config's ``planner`` field (the names must
+    then differ: give a mapping to compare, e.g., two sample sizes of the same planner).
+
+    Raises
+    ------
+    ValueError
+        If there is no planner, two share a name, or a config is malformed
+        (:func:`scrppl.planning.check_planner_config`).
+    """
+    if isinstance(planners, PlannerConfig | str):
+        raise ValueError(
+            f"planners must be a mapping name -> PlannerConfig or a sequence of PlannerConfig, got "
+            f"{planners!r}"
+        )
+    if isinstance(planners, Mapping):
+        items = [(str(name), config) for name, config in planners.items()]
+    else:
+        items = [(getattr(c, "planner", None), c) for c in planners]
+    names = [name for name, _ in items]
+    if not items:
+        raise ValueError("run_experiment needs at least one planner")
+    if len(set(names)) != len(names):
+        raise ValueError(
+            f"planners must have distinct names, got {names}; pass a mapping name -> PlannerConfig"
+        )
+    return {name: check_planner_config(config) for name, config in items}
+
+
 def run_experiment(
     key: jax.Array,
     methods: Mapping[str, Method],
-    planners: Sequence[str] = ("sampled", "random"),
+    planners: Mapping[str, PlannerConfig] | Sequence[PlannerConfig] = PAPER_PLANNERS,
     *,
     category_names: Sequence[str] | None = None,
     keep_beliefs: bool = False,
@@ -79,7 +119,10 @@ def run_experiment(
     methods
         Name -> :class:`Method`. All methods' trials must share labels, poses and start views.
     planners
-        Planner names (:data:`scrppl.planning.PLANNERS`).
+        The planners to compare: a mapping name -> :class:`~scrppl.planning.PlannerConfig`, or a
+        sequence of configs named by their ``planner`` field (:func:`planner_configs`). Default: the
+        paper's :data:`PAPER_PLANNERS`, ``{"sampled": PlannerConfig("sampled"), "random":
+        PlannerConfig("random")}``.
     category_names
         Names of the table's categories (to label trials); indices are stored if omitted.
     keep_beliefs
@@ -88,18 +131,28 @@ def run_experiment(
     progress
         Show progress bars.
     **run_options
-        Passed to :func:`scrppl.sim.run_trials` (``objective``, ``mode``, ``n_steps``, ``n_samples``,
-        ``order``, ``motion_cost``, ``chunk_size``).
+        Passed to :func:`scrppl.sim.run_trials` (``n_steps``, ``chunk_size``, ``batch_size``,
+        ``devices``); the planner settings travel in ``planners``.
 
     Returns
     -------
     xarray.Dataset
-        The dimension ``filter`` is labelled by the method names (``filter_kind`` gives each method's
-        filter). Per-step metrics with dims ``(filter, planner, trial, step)``, ``views_to_confidence``
-        ``(filter, planner, trial)`` and the trials' truth as coordinates along ``trial``.
+        Per-step metrics with dims ``(method, planner, trial, step)``, ``views_to_confidence``
+        ``(method, planner, trial)`` and the trials' truth as coordinates along ``trial``. The
+        dimension ``method`` is labelled by the method names, ``filter_kind`` gives each method's
+        filter, ``planner`` the planner names; the attribute ``planner_configs`` holds each planner's
+        settings (JSON). Select a method with ``ds.sel({"method": name})``: ``method`` is also a
+        keyword argument of xarray's ``sel``, so ``ds.sel(method=name)`` selects nothing.
     """
     if not methods:
         raise ValueError("run_experiment needs at least one method")
+    misplaced = sorted(set(run_options) & set(PlannerConfig._fields))
+    if misplaced:
+        raise ValueError(
+            f"{', '.join(misplaced)}: planner settings travel in the planners' PlannerConfig, e.g. "
+            f"planners=[PlannerConfig('sampled', {misplaced[0]}=...), PlannerConfig('random')]"
+        )
+    configs = planner_configs(planners)
     names = list(methods)
     ref = methods[names[0]].trials
     for name in names[1:]:
@@ -113,13 +166,13 @@ def run_experiment(
     for name in names:
         meth = methods[name]
         per_planner = []
-        for planner in planners:
+        for config in configs.values():
             rec = run_trials(
                 key,
                 meth.model,
                 meth.trials,
+                config,
                 filter=meth.filter,
-                planner=planner,
                 progress=progress,
                 **run_options,
             )
@@ -132,7 +185,7 @@ def run_experiment(
             per_planner.append(met)
         results[name] = per_planner
     n_t, n_k = results[names[0]][0]["class_entropy"].shape
-    dims4 = ("filter", "planner", "trial", "step")
+    dims4 = ("method", "planner", "trial", "step")
     data = {}
     for var in (*STEP_METRICS, "response", "azimuth", "observed"):
         data[var] = (dims4, np.stack([np.stack([m[var] for m in results[n]]) for n in names]))
@@ -148,11 +201,11 @@ def run_experiment(
     cat = np.asarray(ref.category)
     start = np.asarray(ref.start)
     coords = {
-        "filter": names,
-        "planner": list(planners),
+        "method": names,
+        "planner": list(configs),
         "trial": np.arange(n_t),
         "step": np.arange(1, n_k + 1),
-        "filter_kind": ("filter", [methods[n].filter for n in names]),
+        "filter_kind": ("method", [methods[n].filter for n in names]),
         "label": ("trial", np.asarray(ref.label)),
         "pose": ("trial", np.asarray(ref.pose)),
         "category": (
@@ -165,29 +218,30 @@ def run_experiment(
         "scale": ("trial", start[:, 2]),
     }
     options = {k: (float(v) if isinstance(v, float) else v) for k, v in run_options.items()}
-    return xr.Dataset(
-        data,
-        coords=coords,
-        attrs={"run_options": json.dumps(options), "confidence_threshold": M.CONFIDENCE},
-    )
+    attrs = {
+        "planner_configs": json.dumps({name: c._asdict() for name, c in configs.items()}),
+        "run_options": json.dumps(options),
+        "confidence_threshold": M.CONFIDENCE,
+    }
+    return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
 def summarise(ds: xr.Dataset, seed: int = 0, n_boot: int = 1000) -> xr.Dataset:
-    """Means over trials with bootstrap 95% intervals, per (filter, planner, step).
+    """Means over trials with bootstrap 95% intervals, per (method, planner, step).
 
     Returns a Dataset with ``<metric>`` (mean), ``<metric>_lo``, ``<metric>_hi`` for every per-step
     metric, ``tp_minus_tn`` (:func:`scrppl.sim.metrics.tp_minus_tn`) with its interval, and
-    ``views_to_confidence`` per (filter, planner).
+    ``views_to_confidence`` per (method, planner).
     """
     label = ds["label"].values
     out = {}
-    dims = ("filter", "planner", "step")
+    dims = ("method", "planner", "step")
     for var in (*STEP_METRICS, "tp_minus_tn", "views_to_confidence"):
-        shape = (ds.sizes["filter"], ds.sizes["planner"]) + (
+        shape = (ds.sizes["method"], ds.sizes["planner"]) + (
             () if var == "views_to_confidence" else (ds.sizes["step"],)
         )
         vals = {s: np.empty(shape) for s in ("", "_lo", "_hi")}
-        for i in range(ds.sizes["filter"]):
+        for i in range(ds.sizes["method"]):
             for j in range(ds.sizes["planner"]):
                 if var == "tp_minus_tn":
                     x = ds["response_sum"].values[i, j]
@@ -199,7 +253,7 @@ def summarise(ds: xr.Dataset, seed: int = 0, n_boot: int = 1000) -> xr.Dataset:
         d = dims[:2] if var == "views_to_confidence" else dims
         for s, v in vals.items():
             out[var + s] = (d, v)
-    return xr.Dataset(out, coords={k: ds[k] for k in ("filter", "planner", "step")})
+    return xr.Dataset(out, coords={k: ds[k] for k in ("method", "planner", "step")})
 
 
 def compare_planners(
@@ -225,8 +279,8 @@ def compare_planners(
                 f"planner {p!r} is not in the experiment ({ds['planner'].values.tolist()})"
             )
     out = {}
-    for method in ds["filter"].values.tolist():
-        sub = ds.sel({"filter": method})
+    for method in ds["method"].values.tolist():
+        sub = ds.sel({"method": method})
         a = sub["views_to_confidence"].sel(planner=planner).values.astype(float)
         b = sub["views_to_confidence"].sel(planner=baseline).values.astype(float)
         d, lo, hi = M.paired_bootstrap_difference(seed, a, b, n_boot)
@@ -260,8 +314,8 @@ def calibration(ds: xr.Dataset, n_bins: int = 10) -> dict:
     """
     out = {}
     label = ds["label"].values
-    for method in ds["filter"].values.tolist():
-        p = ds["p_present"].sel({"filter": method}).values  # (planner, trial, step)
+    for method in ds["method"].values.tolist():
+        p = ds["p_present"].sel({"method": method}).values  # (planner, trial, step)
         y = np.broadcast_to(label[None, :, None], p.shape)
         mean_p, frac, count = M.reliability(p, y, n_bins)
         out[method] = {
@@ -279,5 +333,28 @@ def save_trials(ds: xr.Dataset, path: str | Path) -> Path:
 
 
 def load_trials(path: str | Path) -> xr.Dataset:
-    """Load an experiment dataset written by :func:`save_trials`."""
-    return read_netcdf(path, "trials file")
+    """The trial results written by :func:`save_trials` (``trials.nc``), as :func:`run_experiment` made them.
+
+    An ``xarray.Dataset`` of per-trial, per-step metrics with dims ``(method, planner, trial, step)``
+    (and ``target`` first for a study's file), not the trial *inputs* of :func:`scrppl.sim.make_trials`.
+    Files written before the methods' dimension was named ``method`` (it was ``filter``) are renamed on
+    load, so older results open unchanged.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If the file holds no trial results (no ``method``/``filter``, ``planner`` and ``trial``
+        dimensions), naming the file.
+    """
+    ds = read_netcdf(path, "trials file", remedy="rerun `scrppl simulate` to regenerate it")
+    if "method" not in ds.dims and "filter" in ds.dims:
+        ds = ds.rename({"filter": "method"})
+    missing = [d for d in ("method", "planner", "trial") if d not in ds.dims]
+    if missing:
+        raise ValueError(
+            f"{path} holds no trial results (no {', '.join(missing)} dimension; it has "
+            f"{dict(ds.sizes)}); load trials written by scrppl.sim.save_trials or `scrppl simulate`"
+        )
+    return ds

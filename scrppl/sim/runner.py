@@ -24,11 +24,11 @@ from tqdm.auto import tqdm
 
 from scrppl.belief import FILTERS, init_belief, joint_log_belief, update
 from scrppl.models.response import ResponseModel, check_response_model
-from scrppl.planning import MODES, PLANNERS, choose_view
+from scrppl.planning import DEFAULT_PLANNER, PlannerConfig, check_planner_config, choose_view
 from scrppl.sim.simulator import Trials, check_starts, robot_frame
 from scrppl.views import check_mask_shape
 
-__all__ = ["TrialRecord", "run_trials", "run_trial"]
+__all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked"]
 
 #: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
 #: that can still be unvisited at its first step (more phases: less work, about twice the compilation
@@ -68,13 +68,8 @@ def run_trial(
     start,
     *,
     filter: str = "naive_bayes",
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
+    config: PlannerConfig = DEFAULT_PLANNER,
     n_steps: int = 8,
-    n_samples: int = 256,
-    order: int = 32,
-    motion_cost=0.0,
     phases: int = 1,
 ) -> TrialRecord:
     """Run one trial (pure, traceable; see :func:`run_trials` for the batched, checked version).
@@ -91,8 +86,8 @@ def run_trial(
         Hidden pose ``theta*``.
     start
         Start robot view ``(phi0, e0, s0)``.
-    filter, planner, objective, mode, n_steps, n_samples, order, motion_cost
-        See :func:`run_trials`.
+    filter, config, n_steps
+        See :func:`run_trials` (here ``config.motion_cost`` may be a traced value).
     phases
         Number of scans the steps are split into; each scores only the candidates that can still be
         unvisited at its first step (the result does not depend on it).
@@ -125,20 +120,9 @@ def run_trial(
 
     def step(carry, t, max_candidates=None):
         belief, visited, current = carry
+        k = jax.random.fold_in(key, t)
         view, found, _ = choose_view(
-            jax.random.fold_in(key, t),
-            model,
-            belief,
-            current,
-            visited,
-            avail_r,
-            planner=planner,
-            objective=objective,
-            mode=mode,
-            n_samples=n_samples,
-            order=order,
-            motion_cost=motion_cost,
-            max_candidates=max_candidates,
+            k, model, belief, current, visited, avail_r, config, max_candidates=max_candidates
         )
         belief, visited, current, f = observe_update(
             belief, visited, current, view.astype(jnp.int32), found
@@ -148,7 +132,7 @@ def run_trial(
     # After k views at most C - k candidates are left. The steps are split into a few phases, each a
     # scan that evaluates only as many candidates as can be left at its first step.
     n_a, n_e, n_s = avail_r.shape
-    n_cand = n_a if mode == "azimuth" else n_a * n_e * n_s
+    n_cand = n_a if config.mode == "azimuth" else n_a * n_e * n_s
     carry = (belief, visited, current)
     parts = [jax.tree.map(lambda x: x[None], first)]
     for lo, hi in _phases(n_steps, phases):
@@ -165,22 +149,30 @@ def _phases(n_steps: int, n_phases: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
-@functools.lru_cache(maxsize=64)
-def _chunk_runner(n_devices: int, batch_size: int, static: tuple):
-    """A compiled function that runs a chunk of trials.
+def _trial(key, model, motion_cost, responses, available, pose, start, *, config, **options):
+    """:func:`run_trial` with the motion cost as a (traced) value beside the compiled ``config``."""
+    config = config._replace(motion_cost=motion_cost)
+    return run_trial(key, model, responses, available, pose, start, config=config, **options)
 
-    It takes the experiment's key and the chunk's first trial index and folds the per-trial keys in
-    itself (no eager work per chunk). ``lax.map`` over small ``vmap`` batches (or single trials) keeps
+
+@functools.lru_cache(maxsize=64)
+def _chunk_runner(trial_fn, n_devices: int, batch_size: int, static: tuple):
+    """A compiled function that runs a chunk of trials with ``trial_fn``.
+
+    ``trial_fn(key, *shared, *per_trial, **dict(static))`` runs one trial: ``shared`` are the arguments
+    every trial gets (the model, the motion cost, ...), ``per_trial`` the trial's own arrays. The compiled
+    function takes the experiment's key and the chunk's first trial index and folds the per-trial keys
+    in itself (no eager work per chunk). ``lax.map`` over small ``vmap`` batches (or single trials) keeps
     the intermediates in cache; the chunk is split across ``n_devices`` CPU devices with ``shard_map``.
     """
     options = dict(static)
 
-    def local(keys, model, responses, available, pose, start, motion_cost):
+    def local(keys, shared, per_trial):
         def one(args):
-            k, r, a, p, st = args
-            return run_trial(k, model, r, a, p, st, motion_cost=motion_cost, **options)
+            k, *own = args
+            return trial_fn(k, *shared, *own, **options)
 
-        return jax.lax.map(one, (keys, responses, available, pose, start), batch_size=batch_size)
+        return jax.lax.map(one, (keys, *per_trial), batch_size=batch_size)
 
     if n_devices == 1:
         run = local
@@ -189,40 +181,100 @@ def _chunk_runner(n_devices: int, batch_size: int, static: tuple):
         spec = jax.sharding.PartitionSpec("trials")
         rep = jax.sharding.PartitionSpec()
         run = jax.shard_map(
-            local,
-            mesh=mesh,
-            in_specs=(spec, rep, spec, spec, spec, spec, rep),
-            out_specs=spec,
-            check_vma=False,
+            local, mesh=mesh, in_specs=(spec, rep, spec), out_specs=spec, check_vma=False
         )
 
-    def chunk(key, first, model, responses, available, pose, start, motion_cost):
-        index = first + jnp.arange(responses.shape[0])
+    def chunk(key, first, shared, per_trial):
+        index = first + jnp.arange(per_trial[0].shape[0])
         keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
-        return run(keys, model, responses, available, pose, start, motion_cost)
+        return run(keys, shared, per_trial)
 
     return jax.jit(chunk)
+
+
+def run_chunked(
+    trial_fn,
+    static: tuple,
+    key: jax.Array,
+    shared: tuple,
+    per_trial: tuple,
+    *,
+    chunk_size: int = 1024,
+    batch_size: int = 1,
+    devices: int | None = None,
+    progress: bool = False,
+    desc: str = "trials",
+) -> list[jax.Array]:
+    """Run a batch of trials in compiled, fixed-size chunks; the trial runners' common driver.
+
+    Trial ``i`` gets the key ``fold_in(key, i)``, so the result does not depend on ``chunk_size``,
+    ``batch_size`` or ``devices``. Used by :func:`run_trials` and by the multi-detector runner
+    (:func:`scrppl.extensions.run_multi_trials`).
+
+    Parameters
+    ----------
+    trial_fn
+        A module-level function ``trial_fn(key, *shared, *own, **dict(static))`` returning a pytree of
+        arrays for one trial (hashable: it keys the cache of compiled runners).
+    static
+        Hashable ``(name, value)`` pairs passed to ``trial_fn`` as keyword arguments (compiled in).
+    key
+        The experiment's PRNG key.
+    shared
+        Arguments every trial gets (replicated over the devices).
+    per_trial
+        Arrays with a leading trial axis ``T``; trial ``i`` gets their ``i``-th rows.
+    chunk_size, batch_size, devices, progress
+        As in :func:`run_trials`; ``desc`` labels the progress bar.
+
+    Returns
+    -------
+    list of jax.Array
+        The leaves of ``trial_fn``'s output with a leading axis ``T``.
+    """
+    n = int(np.shape(per_trial[0])[0])
+    n_dev = len(jax.local_devices()) if devices is None else int(devices)
+    if not 1 <= n_dev <= len(jax.local_devices()):
+        raise ValueError(f"devices must lie in 1..{len(jax.local_devices())}, got {devices}")
+    batch = max(1, int(batch_size))
+    n_dev = max(1, min(n_dev, -(-n // batch)))  # no device without a full batch of work
+    unit = n_dev * batch
+    chunk = max(unit, -(-min(int(chunk_size), n) // unit) * unit)
+    runner = _chunk_runner(trial_fn, n_dev, batch, static)
+    # chunks are cut and padded on the host: indexing device arrays from Python costs a dispatch each
+    host = [np.asarray(x) for x in per_trial]
+    outs = []
+    for lo in tqdm(range(0, n, chunk), desc=desc, disable=not progress, leave=False):
+        if lo == 0 and chunk == n:
+            part = host
+        else:
+            sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # pad the last chunk with repeats
+            part = [x[sel] for x in host]
+        out = runner(key, np.int32(lo), shared, tuple(part))
+        if chunk == n:  # one chunk, nothing to cut
+            if n_dev == 1:
+                return list(out)
+            # plain (uncommitted) arrays rather than arrays sharded over the devices
+            return [jnp.asarray(np.asarray(x)) for x in out]
+        keep = min(chunk, n - lo)
+        outs.append([np.asarray(x)[:keep] for x in out])
+    return [jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True)]
 
 
 def run_trials(
     key: jax.Array,
     model: ResponseModel,
     trials: Trials,
+    config: PlannerConfig = DEFAULT_PLANNER,
     *,
     filter: str = "naive_bayes",
-    planner: str = "sampled",
-    objective: str = "joint",
-    mode: str = "azimuth",
     n_steps: int | None = None,
-    n_samples: int = 256,
-    order: int = 32,
-    motion_cost: float = 0.0,
     chunk_size: int = 1024,
     batch_size: int = 1,
     devices: int | None = None,
     progress: bool = False,
 ) -> TrialRecord:
-    """Run every trial with one filter and one planner.
+    """Run every trial with one filter and one planner configuration.
 
     Parameters
     ----------
@@ -232,20 +284,15 @@ def run_trials(
         The response model, on the same view grid as the trials.
     trials
         The trials (:func:`scrppl.sim.make_trials`).
+    config
+        How each view is chosen (:class:`scrppl.planning.PlannerConfig`): the planner (``"random"``,
+        ``"sampled"``, the paper's eq. 5, ``"quadrature"`` or ``"plug_in"``), its objective, the
+        candidate views (``mode``: ``"azimuth"``, the paper, or ``"all"``), ``M``, the quadrature order
+        and the motion cost in nats per azimuth bin travelled.
     filter
-        ``"naive_bayes"`` (the paper) or ``"instance"`` (instance-aware).
-    planner
-        ``"random"``, ``"sampled"`` (the paper's eq. 5), ``"quadrature"`` or ``"plug_in"``.
-    objective
-        Entropy objective of the entropy planners: ``"joint"``, ``"class"`` or ``"pose"``.
-    mode
-        Candidate views: ``"azimuth"`` (the paper) or ``"all"``.
+        The belief filter: ``"naive_bayes"`` (the paper) or ``"instance"`` (instance-aware).
     n_steps
         Views per trial (default ``A``; at most the number of candidate views).
-    n_samples, order
-        ``M`` of the sampled planner; Gauss-Hermite order of the quadrature planner.
-    motion_cost
-        Nats per azimuth bin travelled.
     chunk_size
         Trials per call of the compiled runner (the last chunk is padded).
     batch_size
@@ -261,59 +308,39 @@ def run_trials(
     TrialRecord
         Arrays with leading axes ``(T, K)``.
     """
+    config = check_planner_config(config)
     if filter not in FILTERS:
         raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
-    if planner not in PLANNERS:
-        raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS}")
-    if mode not in MODES:
-        raise ValueError(f"unknown candidate mode {mode!r}; expected one of {MODES}")
     grid_shape = tuple(trials.responses.shape[1:])
     check_mask_shape(
         trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
     )
     check_response_model(model, grid_shape)
     n_a, n_e, n_s = grid_shape
-    max_steps = n_a if mode == "azimuth" else n_a * n_e * n_s
+    max_steps = n_a if config.mode == "azimuth" else n_a * n_e * n_s
     n_steps = n_a if n_steps is None else int(n_steps)
     if not 1 <= n_steps <= max_steps:
-        raise ValueError(f"n_steps must lie in 1..{max_steps} for mode {mode!r}, got {n_steps}")
+        raise ValueError(
+            f"n_steps must lie in 1..{max_steps} for mode {config.mode!r}, got {n_steps}"
+        )
     n = trials.n_trials
     check_starts(trials.available, trials.pose, trials.start)
-    n_dev = len(jax.local_devices()) if devices is None else int(devices)
-    if not 1 <= n_dev <= len(jax.local_devices()):
-        raise ValueError(f"devices must lie in 1..{len(jax.local_devices())}, got {devices}")
-    batch = max(1, int(batch_size))
-    n_dev = max(1, min(n_dev, -(-n // batch)))  # no device without a full batch of work
-    unit = n_dev * batch
-    chunk = max(unit, -(-min(int(chunk_size), n) // unit) * unit)
     static = (
         ("filter", filter),
-        ("planner", planner),
-        ("objective", objective),
-        ("mode", mode),
+        ("config", config._replace(motion_cost=0.0)),  # the cost is passed as a value
         ("n_steps", n_steps),
-        ("n_samples", int(n_samples)),
-        ("order", int(order)),
         ("phases", _PHASES if n >= _MANY_TRIALS else 1),
     )
-    runner = _chunk_runner(n_dev, batch, static)
-    # chunks are cut and padded on the host: indexing device arrays from Python costs a dispatch each
-    host = [np.asarray(x) for x in (trials.responses, trials.available, trials.pose, trials.start)]
-    outs = []
-    for lo in tqdm(
-        range(0, n, chunk), desc=f"{filter}/{planner}", disable=not progress, leave=False
-    ):
-        if lo == 0 and chunk == n:
-            part = host
-        else:
-            sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # pad the last chunk with repeats
-            part = [x[sel] for x in host]
-        out = runner(key, np.int32(lo), model, *part, np.float32(motion_cost))
-        if chunk == n:  # one chunk, nothing to cut
-            if n_dev == 1:
-                return TrialRecord(*out)
-            # plain (uncommitted) arrays rather than arrays sharded over the devices
-            return TrialRecord(*(jnp.asarray(np.asarray(x)) for x in out))
-        keep = min(chunk, n - lo)
-        outs.append([np.asarray(x)[:keep] for x in out])
-    return TrialRecord(*(jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True)))
+    out = run_chunked(
+        _trial,
+        static,
+        key,
+        (model, np.float32(config.motion_cost)),
+        (trials.responses, trials.available, trials.pose, trials.start),
+        chunk_size=chunk_size,
+        batch_size=batch_size,
+        devices=devices,
+        progress=progress,
+        desc=f"{filter}/{config.planner}",
+    )
+    return TrialRecord(*out)

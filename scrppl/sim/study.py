@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +26,7 @@ import numpy as np
 import xarray as xr
 
 from scrppl._io import atomic_path
+from scrppl.planning import DEFAULT_PLANNER, PlannerConfig, check_planner_config
 from scrppl.sim import metrics as M
 from scrppl.sim.experiment import (
     Method,
@@ -36,9 +37,12 @@ from scrppl.sim.experiment import (
     summarise,
 )
 
+if TYPE_CHECKING:
+    from scrppl.parallel import Executor
+
 __all__ = [
     "DEFAULT_KINDS",
-    "PLANNERS",
+    "study_planners",
     "load_methods",
     "example_trial",
     "headline",
@@ -53,8 +57,6 @@ __all__ = [
 
 #: Model kinds tried in order; each is loaded with :func:`scrppl.models.load_response_model`.
 DEFAULT_KINDS = ("gaussian", "hierarchical")
-#: The planners the study compares: entropy planning (eq. 5) and the paper's random unseen view.
-PLANNERS = ("sampled", "random")
 #: Targets simulated by default (the first ones of the table).
 DEFAULT_N_TARGETS = 3
 
@@ -148,7 +150,7 @@ def load_methods(
     FileNotFoundError
         If no kind has a saved model.
     """
-    from scrppl.models import load_response_model, transforms
+    from scrppl.models import load_response_model
     from scrppl.models.response import check_response_model
     from scrppl.responses import table_grid
     from scrppl.sim.simulator import make_trials
@@ -157,12 +159,13 @@ def load_methods(
     used: dict[str, str] = {}
     for kind in kinds:
         try:
-            model, info = load_response_model(models_dir, kind, detector, target, n_draws=max_draws)
+            loaded = load_response_model(models_dir, kind, detector, target, n_draws=max_draws)
         except FileNotFoundError as err:
             log(f"  {target}: no {kind} model ({err}); skipped")
             continue
+        model = loaded.response_model
         check_response_model(model, table_grid(table).shape)
-        name = info.get("transform", "identity")
+        name = loaded.transform
         used[kind] = name
         trials = make_trials(
             key,
@@ -170,7 +173,7 @@ def load_methods(
             detector,
             target,
             n_trials,
-            transform=lambda raw, name=name: transforms.apply(name, raw),
+            transform=loaded.to_model_scale,
         )
         methods[f"{kind}+naive_bayes"] = Method(model, "naive_bayes", trials)
         if model.mu.shape[0] > 1 or float(np.max(np.asarray(model.tau))) > 0:
@@ -184,12 +187,18 @@ def load_methods(
 
 
 def example_trial(
-    key: jax.Array, method: Method, *, pose_degrees: float = 135.0, n_steps: int = 3, **run_options
+    key: jax.Array,
+    method: Method,
+    config: PlannerConfig = DEFAULT_PLANNER,
+    *,
+    pose_degrees: float = 135.0,
+    n_steps: int = 3,
 ) -> tuple[np.ndarray, int, list[int | None]] | None:
     """One positive trial planned by expected entropy, for the paper's Fig. 4.
 
     The first positive trial of ``method.trials`` with the object turned to ``pose_degrees`` (the
-    nearest azimuth bin).
+    nearest azimuth bin), planned with ``config`` (:class:`~scrppl.planning.PlannerConfig`; default the
+    paper's sampled planner).
 
     Returns
     -------
@@ -214,15 +223,7 @@ def example_trial(
     one = select_trials(trials, pos[:1])
     pose = int(degrees_to_azimuth(pose_degrees, one.responses.shape[1]))
     one = one._replace(pose=jnp.asarray([pose], one.pose.dtype))
-    rec = run_trials(
-        key,
-        method.model,
-        one,
-        filter=method.filter,
-        planner="sampled",
-        n_steps=n_steps,
-        **run_options,
-    )
+    rec = run_trials(key, method.model, one, config, filter=method.filter, n_steps=n_steps)
     prior = np.asarray(joint_belief(init_belief(method.filter, method.model)))
     beliefs = np.concatenate([prior[None], np.exp(np.asarray(rec.log_belief[0]))])
     robots: list[int | None] = [None] + [int(v) for v in np.asarray(rec.views[0, :, 0])]
@@ -238,8 +239,8 @@ def headline(ds: xr.Dataset, summary: xr.Dataset, comparison: Mapping, cal: Mapp
     steps = [int(s) for s in ds["step"].values]
     pick = [s for s in (1, 2, 4, steps[-1]) if s in steps]
     out = {}
-    for name in ds["filter"].values.tolist():
-        s = summary.sel({"filter": name})
+    for name in ds["method"].values.tolist():
+        s = summary.sel({"method": name})
         c = comparison[name]
         planners = s["planner"].values.tolist()
 
@@ -267,8 +268,8 @@ def pooled_calibration(datasets: Sequence[xr.Dataset]) -> dict[str, dict[str, An
     ys: dict[str, list] = {}
     for ds in datasets:
         label = ds["label"].values
-        for name in ds["filter"].values.tolist():
-            p = ds["p_present"].sel({"filter": name}).values
+        for name in ds["method"].values.tolist():
+            p = ds["p_present"].sel({"method": name}).values
             ps.setdefault(name, []).append(p.ravel())
             ys.setdefault(name, []).append(np.broadcast_to(label[None, :, None], p.shape).ravel())
     out = {}
@@ -311,6 +312,26 @@ class Study(NamedTuple):
     summary: dict[str, Any]
 
 
+def study_planners(config: PlannerConfig = DEFAULT_PLANNER) -> dict[str, PlannerConfig]:
+    """The planners :func:`run_study` compares: ``config`` (entropy planning, eq. 5) and a random unseen view.
+
+    Named by their ``planner`` field, e.g. ``{"sampled": config, "random": PlannerConfig("random")}``;
+    the random baseline uses ``config``'s candidate mode.
+
+    Raises
+    ------
+    ValueError
+        If ``config`` is malformed or is itself the random planner.
+    """
+    config = check_planner_config(config)
+    if config.planner == "random":
+        raise ValueError(
+            "PlannerConfig.planner: the study compares an entropy planner with the random baseline; "
+            "got planner='random'"
+        )
+    return {config.planner: config, "random": PlannerConfig("random", mode=config.mode)}
+
+
 def run_study(
     seed: int,
     table: xr.Dataset,
@@ -320,14 +341,14 @@ def run_study(
     *,
     trials: int = 160,
     large_trials: int = 0,
-    n_samples: int = 256,
+    config: PlannerConfig = DEFAULT_PLANNER,
     max_draws: int | None = 32,
     large_max_draws: int | None = 8,
-    objective: str = "joint",
-    motion_cost: float = 0.0,
     kinds: Sequence[str] = DEFAULT_KINDS,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
+    executor: Executor | None = None,
+    target_offset: int = 0,
 ) -> Study:
     """The experiment of ``scrppl simulate``: for each target, every method, entropy planning vs random.
 
@@ -345,39 +366,42 @@ def run_study(
         Which fits.
     trials, large_trials
         Trials of the paper's experiment (160) and of the large one (0 skips it).
-    n_samples
-        Samples M per planning decision (eq. 5).
+    config
+        The entropy planner (:class:`~scrppl.planning.PlannerConfig`: planner, objective, samples ``M``
+        per decision, motion cost, ...), compared with a random unseen view (:func:`study_planners`).
     max_draws, large_max_draws
         Posterior draws kept in the paper's and in the large experiment.
-    objective, motion_cost
-        The planner's objective (``joint``, ``class``, ``pose``) and cost in nats per azimuth bin travelled.
     kinds
         Model kinds to load.
     progress, log
         Progress bars, and where to report each step.
+    executor
+        A Dask executor (:func:`scrppl.parallel.executor`): one task per target on a cluster, with the
+        same keys and so the same numbers; ``None`` runs here.
+    target_offset
+        Number of the first target (its key is ``fold_in(key(seed), target_offset)``): a task running
+        one target of a longer list uses that target's key.
     """
+    if executor is not None and executor.distributed and len(targets) > 1:
+        return _run_study_per_target(executor, dict(locals()))
     import time
 
     if trials < 2:
         raise ValueError(f"trials must be at least 2, got {trials}")
-    run_options = {
-        "n_samples": int(n_samples),
-        "objective": objective,
-        "mode": "azimuth",
-        "motion_cost": float(motion_cost),
-    }
+    planners = study_planners(config)
+    config = planners[next(iter(planners))]
     names = table["category"].values.tolist()
     summary: dict[str, Any] = {
         "detector": detector,
         "settings": {
             "trials": trials,
             "large_trials": large_trials,
-            "n_samples": int(n_samples),
+            "n_samples": config.n_samples,
             "max_draws": max_draws,
             "large_max_draws": large_max_draws,
-            "objective": objective,
-            "motion_cost": float(motion_cost),
-            "planners": list(PLANNERS),
+            "objective": config.objective,
+            "motion_cost": config.motion_cost,
+            "planners": list(planners),
             "positive_fraction": 0.5,
             "confidence_threshold": M.CONFIDENCE,
         },
@@ -386,7 +410,7 @@ def run_study(
     root = jax.random.key(seed)
     paper_sets, large_sets, summaries, examples = [], [], {}, {}
     t_start = time.perf_counter()
-    for ti, target in enumerate(targets):
+    for ti, target in enumerate(targets, start=target_offset):
         k_trials, k_run, k_large, k_fig = jax.random.split(jax.random.fold_in(root, ti), 4)
         log(f"[simulate] {target}: {trials} trials")
         methods, used = load_methods(
@@ -394,16 +418,14 @@ def run_study(
             max_draws=max_draws, log=log,
         )  # fmt: skip
         t0 = time.perf_counter()
-        ds = run_experiment(
-            k_run, methods, PLANNERS, category_names=names, progress=progress, **run_options
-        )
+        ds = run_experiment(k_run, methods, planners, category_names=names, progress=progress)
         entry: dict[str, Any] = {"transforms": used, "seconds": round(time.perf_counter() - t0, 2)}
         summaries[target] = summarise(ds, seed=seed)
         entry["paper_experiment"] = headline(
-            ds, summaries[target], compare_planners(ds, seed=seed), calibration(ds)
+            ds, summaries[target], compare_planners(ds, config.planner, seed=seed), calibration(ds)
         )
         paper_sets.append(ds)
-        examples[target] = example_trial(k_fig, next(iter(methods.values())), **run_options)
+        examples[target] = example_trial(k_fig, next(iter(methods.values())), config)
         if large_trials > 0:
             log(f"[simulate] {target}: large experiment, {large_trials} trials")
             large_methods, _ = load_methods(
@@ -412,13 +434,13 @@ def run_study(
             )  # fmt: skip
             t0 = time.perf_counter()
             big = run_experiment(
-                k_run, large_methods, PLANNERS, category_names=names, progress=progress,
-                chunk_size=2048, **run_options,
+                k_run, large_methods, planners, category_names=names, progress=progress,
+                chunk_size=2048,
             )  # fmt: skip
             entry["large_experiment"] = headline(
                 big,
                 summarise(big, seed=seed, n_boot=200),
-                compare_planners(big, seed=seed, n_boot=500),
+                compare_planners(big, config.planner, seed=seed, n_boot=500),
                 calibration(big),
             )
             entry["large_seconds"] = round(time.perf_counter() - t0, 2)
@@ -437,6 +459,50 @@ def run_study(
     }
     summary["seconds_total"] = round(time.perf_counter() - t_start, 1)
     return Study(paper, large, summaries, examples, pooled, summary)
+
+
+def _silent(msg: str) -> None:
+    pass
+
+
+def _study_task(job: tuple[int, str], options: dict[str, Any]) -> Study:
+    """One cluster task of :func:`run_study`: target number ``i`` alone, with its own key."""
+    i, target = job
+    return run_study(**{**options, "targets": [target], "target_offset": i})
+
+
+def _run_study_per_target(ex: Executor, params: dict[str, Any]) -> Study:
+    """:func:`run_study` with one task per target on ``ex``, merged as a run in process merges them."""
+    import time
+
+    t0 = time.perf_counter()
+    targets = list(params["targets"])
+    log, progress = params["log"], params["progress"]
+    options = {k: v for k, v in params.items() if k not in ("executor", "targets", "target_offset")}
+    options.update(log=_silent, progress=False)  # the workers report nothing; the bar is here
+    jobs = list(enumerate(targets, start=params["target_offset"]))
+    log(f"[simulate] {len(targets)} targets on {ex.scheduler}")
+    parts = ex.map(_study_task, jobs, options, desc="simulate", progress=progress)
+    # what concatenating the targets' datasets in one process gives (coordinates that differ between
+    # targets gain the target dimension)
+    stack = dict(dim="target", join="outer", coords="different", compat="equals")
+    paper = xr.concat([p.trials for p in parts], **stack)
+    large = xr.concat([p.large for p in parts], **stack) if parts[0].large is not None else None
+    pooled = pooled_calibration([p.trials.isel(target=0, drop=True) for p in parts])
+    summary = dict(parts[0].summary)
+    summary["targets"] = {t: p.summary["targets"][t] for t, p in zip(targets, parts, strict=True)}
+    summary["calibration_ece_pooled_over_targets"] = {
+        k: round(v["ece"], 4) for k, v in pooled.items()
+    }
+    summary["seconds_total"] = round(time.perf_counter() - t0, 1)
+    return Study(
+        paper,
+        large,
+        {t: p.summaries[t] for t, p in zip(targets, parts, strict=True)},
+        {t: p.examples[t] for t, p in zip(targets, parts, strict=True)},
+        pooled,
+        summary,
+    )
 
 
 def save_study(study: Study, out: str | Path) -> list[Path]:
