@@ -17,6 +17,7 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.sim` -- the simulator, trial runner and experiment;
 * :mod:`scrppl.extensions` -- beyond the paper: two-step lookahead, choosing which detector to run,
   fusing several detectors, and multi-detector trials;
+* :mod:`scrppl.kway` -- beyond the paper: which of K categories, with all target detectors of a family;
 * :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib);
 * :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object;
 * :mod:`scrppl.exercises` -- feedback on the book's exercises (``check("7.1", answer)``).
@@ -37,6 +38,7 @@ _SUBMODULES = (
     "detectors",
     "exercises",
     "extensions",
+    "kway",
     "models",
     "planning",
     "plotting",

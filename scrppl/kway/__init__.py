@@ -1,0 +1,69 @@
+"""Active K-way category recognition: "which of these K categories is this object?" (beyond the paper).
+
+Meger et al. (2010) recognise one category at a time ("is this a bicycle?"). Here the state is the
+object's category ``k`` among ``K`` and its pose, every view returns the responses of all ``T`` target
+detectors of one family, and the robot plans where to look to tell the categories apart.
+
+* :mod:`scrppl.kway.models` -- each target detector's response given the true category, read K-way from
+  the hierarchical fits (:class:`KwayModel`, a stack of ``ResponseModel`` with ``O = K``);
+* :mod:`scrppl.kway.filter` -- the exact filters over ``(k, theta)``: naive Bayes and instance-aware;
+* :mod:`scrppl.kway.planning` -- sampled expected entropy of a vector observation, random baseline;
+* :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
+  binary filters, accuracy, confusion matrices.
+"""
+
+from scrppl.kway.filter import (
+    KwayInstanceBelief,
+    KwayNaiveBayesBelief,
+    VectorMixture,
+    class_entropy,
+    class_marginal,
+    init_belief,
+    joint_entropy,
+    joint_log_belief,
+    mixture_posterior,
+    pose_entropy,
+    pose_marginal,
+    predictive_mixture,
+    update,
+)
+from scrppl.kway.models import (
+    KwayFit,
+    KwayModel,
+    fit_kway,
+    kway_from_fits,
+    kway_response_model,
+    load_kway,
+    save_kway,
+    stack_models,
+    target_model,
+)
+from scrppl.kway.planning import choose_view, expected_entropies, sampled_expected_entropy
+
+__all__ = [
+    "KwayModel",
+    "KwayFit",
+    "kway_response_model",
+    "stack_models",
+    "target_model",
+    "fit_kway",
+    "kway_from_fits",
+    "save_kway",
+    "load_kway",
+    "KwayNaiveBayesBelief",
+    "KwayInstanceBelief",
+    "VectorMixture",
+    "init_belief",
+    "update",
+    "joint_log_belief",
+    "class_marginal",
+    "pose_marginal",
+    "class_entropy",
+    "pose_entropy",
+    "joint_entropy",
+    "predictive_mixture",
+    "mixture_posterior",
+    "choose_view",
+    "expected_entropies",
+    "sampled_expected_entropy",
+]

@@ -1,0 +1,491 @@
+"""The K-way experiment: which category is it, after 1, 2, ... views? (beyond Meger et al. 2010, IV-A).
+
+Each trial shows a held-out (``test`` split) instance of one of the ``K`` categories -- categories in
+equal shares, instances uniformly within them -- under a hidden pose ``theta*``, from a random start
+azimuth on a ring (elevation, scale) where every target detector has a response from every azimuth. At
+each view the ``T = K`` target detectors of one family respond; three methods see the same trials:
+
+* ``planning`` -- the K-way filter (:mod:`scrppl.kway.filter`) choosing views by sampled expected
+  entropy (:mod:`scrppl.kway.planning`);
+* ``random`` -- the same filter, random unseen views;
+* ``one_vs_rest`` -- ``K`` separate binary filters (:mod:`scrppl.belief`, the binary viewpoint models of
+  each target), each fed its own detector's response at the *same* random views as ``random``, the
+  prediction the category whose ``p(present)`` is largest; its class probabilities are the ``p(present)``
+  normalised over categories.
+
+Per trial and step: the MAP category and whether it is right, ``p(true category)``, the class-marginal
+entropy; per trial the views until ``p(true) > 0.95`` (``steps + 1`` if never). Trial ``i`` uses key
+``fold_in(key, i)`` and its step ``j`` ``fold_in(fold_in(key, i), j)`` for every method (paired trials).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+from jax.scipy.special import logsumexp
+from tqdm.auto import tqdm
+
+from scrppl import belief as B
+from scrppl.kway import filter as KF
+from scrppl.kway.models import KwayModel, check_kway_model
+from scrppl.kway.planning import _check_config, _choose_view
+from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig
+from scrppl.responses import table_grid, validate_response_table
+from scrppl.sim import metrics as M
+from scrppl.sim.simulator import robot_frame, transformed_scores
+
+__all__ = [
+    "METHODS",
+    "CONFUSION_STEPS",
+    "KwayTrials",
+    "make_kway_trials",
+    "run_kway_experiment",
+    "class_metrics",
+    "summarise_kway",
+    "compare_kway",
+    "confusion_matrices",
+]
+
+#: Methods of the experiment, in the order of its ``method`` dimension.
+METHODS = ("planning", "random", "one_vs_rest")
+#: The experiment's default planner settings: minimise the class entropy H(k).
+_CLASS_OBJECTIVE = PlannerConfig(objective="class")
+#: Steps after which confusion matrices are reported.
+CONFUSION_STEPS = (1, 2, 4)
+
+
+class KwayTrials(NamedTuple):
+    """A batch of K-way trials (leading axis ``R``: trials).
+
+    Attributes
+    ----------
+    responses
+        Transformed responses of every target detector in the object frame, ``(R, T, A, E, S)``; 0 where
+        missing.
+    available
+        ``(R, A, E, S)``: every target detector has a response there.
+    category
+        True category index ``k*`` (into the table's categories), ``(R,)``.
+    instance
+        Instance index, ``(R,)``.
+    pose
+        Hidden pose ``theta*``, ``(R,)``.
+    start
+        Start robot view ``(phi0, e0, s0)``, ``(R, 3)``.
+    """
+
+    responses: jax.Array
+    available: jax.Array
+    category: jax.Array
+    instance: jax.Array
+    pose: jax.Array
+    start: jax.Array
+
+
+def make_kway_trials(
+    key: jax.Array,
+    table: xr.Dataset,
+    detector: str,
+    n_trials: int,
+    *,
+    transform: Callable[[np.ndarray], np.ndarray] | None = None,
+    split: str = "test",
+) -> KwayTrials:
+    """Draw ``n_trials`` K-way trials from the held-out instances (see the module docstring).
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key: the same key gives the same trials.
+    table
+        The response table; every category must also be a target.
+    detector
+        The detector family.
+    n_trials
+        Number of trials ``R``; category ``r mod K`` of a random permutation, so shares differ by at most 1.
+    transform
+        Applied to the raw scores (the models' transform); ``None`` keeps them.
+    split
+        The instances' split.
+    """
+    validate_response_table(table)
+    if detector not in table["detector"].values.tolist():
+        raise ValueError(
+            f"detector {detector!r} is not in the response table ({table['detector'].values.tolist()})"
+        )
+    if n_trials < 1:
+        raise ValueError(f"n_trials must be positive, got {n_trials}")
+    categories = [str(c) for c in table["category"].values]
+    missing = [c for c in categories if c not in table["target"].values.tolist()]
+    if missing:
+        raise ValueError(
+            f"K-way trials need a target detector for every category; none for {missing}"
+        )
+    score = np.stack([transformed_scores(table, detector, t, transform) for t in categories])
+    present = ~np.isnan(score).any(axis=0)  # (C, I, A, E, S): every target responded
+    complete = present.all(axis=2)  # (C, I, E, S): a full azimuth ring
+    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
+    for c, name in enumerate(categories):
+        if not usable[c].any():
+            raise ValueError(
+                f"category {name!r} has no {split!r} instance with every target's response on a full "
+                f"azimuth ring (detector {detector!r})"
+            )
+    n_k, n_a = len(categories), table_grid(table).n_azimuth
+    k_cat, k_inst, k_ring, k_pose, k_phi = jax.random.split(key, 5)
+    cat = np.asarray(jax.random.permutation(k_cat, np.arange(n_trials) % n_k)).astype(np.int32)
+    u_inst = np.asarray(jax.random.uniform(k_inst, (n_trials,)))
+    u_ring = np.asarray(jax.random.uniform(k_ring, (n_trials,)))
+    inst = np.empty(n_trials, np.int32)
+    ring = np.empty((n_trials, 2), np.int32)
+    for r in range(n_trials):
+        pool = np.flatnonzero(usable[cat[r]])
+        inst[r] = pool[min(int(u_inst[r] * len(pool)), len(pool) - 1)]
+        rings = np.argwhere(complete[cat[r], inst[r]])
+        ring[r] = rings[min(int(u_ring[r] * len(rings)), len(rings) - 1)]
+    pose = np.asarray(jax.random.randint(k_pose, (n_trials,), 0, n_a), np.int32)
+    phi0 = np.asarray(jax.random.randint(k_phi, (n_trials,), 0, n_a), np.int32)
+    resp = np.moveaxis(score[:, cat, inst], 0, 1)  # (R, T, A, E, S)
+    avail = present[cat, inst]
+    return KwayTrials(
+        jnp.asarray(np.where(avail[:, None], resp, 0.0), jnp.float32),
+        jnp.asarray(avail),
+        jnp.asarray(cat),
+        jnp.asarray(inst),
+        jnp.asarray(pose),
+        jnp.asarray(np.c_[phi0, ring].astype(np.int32)),
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# one trial, compiled
+
+
+def _trial(key, model, binary, responses, available, pose, start, *, filter, config, n_steps, ovr):
+    """One trial: K-way filter + planner; with ``ovr`` also the ``K`` binary filters on the same views.
+
+    Returns per step the view ``(3,)``, whether it was observed, the K-way ``p(k | F)`` ``(K,)`` and the
+    binary filters' ``log p(present | F)`` ``(T,)`` (zeros without ``ovr``).
+    """
+    n_t = responses.shape[0]
+    resp_r = jax.vmap(lambda r: robot_frame(r, available, pose)[0])(responses)  # (T, A, E, S)
+    avail_r = robot_frame(responses[0], available, pose)[1]
+
+    def binary_update(bb, f, view):
+        return jax.vmap(lambda m, b, x: B.update(m, b, x, view[0], view[1], view[2]))(binary, bb, f)
+
+    def observe(state, view, found):
+        belief, bb, visited, current = state
+        view = jnp.where(found, view, current)
+        f = resp_r[:, view[0], view[1], view[2]]
+        new = KF.update(model, belief, f, view[0], view[1], view[2])
+        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
+        if ovr:
+            newb = binary_update(bb, f, view)
+            bb = jax.tree.map(lambda n, o: jnp.where(found, n, o), newb, bb)
+        visited = visited.at[view[0], view[1], view[2]].set(
+            visited[view[0], view[1], view[2]] | found
+        )
+        # log p(present | F) of each binary filter (logs: all of them may be tiny)
+        p_ovr = (
+            jax.vmap(lambda b: logsumexp(B.joint_log_belief(b)[1]))(bb) if ovr else jnp.zeros(n_t)
+        )
+        out = (view, found, KF.class_marginal(belief), p_ovr)
+        return (belief, bb, visited, view), out
+
+    bb0 = jax.vmap(lambda m: B.init_belief(filter, m))(binary) if ovr else None
+    state0 = (KF.init_belief(filter, model), bb0, jnp.zeros(avail_r.shape, bool), start)
+    state, first = observe(state0, start, jnp.asarray(True))
+
+    def step(state, j):
+        belief, bb, visited, current = state
+        view, found, _ = _choose_view(
+            jax.random.fold_in(key, j), model, belief, current, visited, avail_r, config
+        )
+        return observe(state, view.astype(jnp.int32), found)
+
+    _, rest = jax.lax.scan(step, state, jnp.arange(1, n_steps))
+    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+
+
+@lru_cache(maxsize=16)
+def _runner(filter: str, config: PlannerConfig, n_steps: int, ovr: bool):
+    def chunk(key, first, model, binary, responses, available, pose, start):
+        index = first + jnp.arange(responses.shape[0])
+        keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
+
+        def one(args):
+            k, r, a, p, s = args
+            return _trial(
+                k, model, binary, r, a, p, s, filter=filter, config=config, n_steps=n_steps, ovr=ovr
+            )
+
+        return jax.lax.map(one, (keys, responses, available, pose, start), batch_size=8)
+
+    return jax.jit(chunk)
+
+
+def _run(key, model, binary, trials, filter, config, n_steps, ovr, chunk_size, progress, desc):
+    n = trials.category.shape[0]
+    chunk = min(int(chunk_size), n)
+    run = _runner(filter, config, int(n_steps), bool(ovr))
+    host = [np.asarray(x) for x in (trials.responses, trials.available, trials.pose, trials.start)]
+    outs = []
+    for lo in tqdm(range(0, n, chunk), desc=desc, disable=not progress, leave=False):
+        sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # the last chunk padded with repeats
+        out = run(key, np.int32(lo), model, binary, *(x[sel] for x in host))
+        keep = min(chunk, n - lo)
+        outs.append([np.asarray(x)[:keep] for x in out])
+    return [np.concatenate(parts) for parts in zip(*outs, strict=True)]
+
+
+# ------------------------------------------------------------------------------------------------
+# the experiment
+
+
+def class_metrics(p_class, category, threshold: float = M.CONFIDENCE) -> dict[str, np.ndarray]:
+    """Per-step metrics from class probabilities ``(R, S, K)`` and true categories ``(R,)``.
+
+    Returns ``predicted``, ``correct``, ``p_true``, ``class_entropy`` (``(R, S)``, nats) and
+    ``views_to_confidence`` ``(R,)`` (first step with ``p_true > threshold``, ``S + 1`` if none).
+    """
+    p = np.asarray(p_class, np.float64)
+    p = p / p.sum(-1, keepdims=True)
+    category = np.asarray(category).astype(int)
+    p_true = np.take_along_axis(p, category[:, None, None], axis=-1)[..., 0]
+    predicted = p.argmax(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plogp = np.where(p > 0, p * np.log(p), 0.0)
+    confident = p_true > threshold
+    n_s = p.shape[1]
+    return {
+        "predicted": predicted,
+        "correct": predicted == category[:, None],
+        "p_true": p_true,
+        "class_entropy": -plogp.sum(-1),
+        "views_to_confidence": np.where(confident.any(1), confident.argmax(1) + 1, n_s + 1),
+    }
+
+
+def run_kway_experiment(
+    key: jax.Array,
+    model: KwayModel,
+    trials: KwayTrials,
+    *,
+    binary: ResponseModel | None = None,
+    filter: str = "instance",
+    config: PlannerConfig = _CLASS_OBJECTIVE,
+    n_steps: int | None = None,
+    categories: Sequence[str] | None = None,
+    keep_probabilities: bool = True,
+    chunk_size: int = 160,
+    progress: bool = False,
+) -> xr.Dataset:
+    """Run entropy planning, random views and (given ``binary``) the one-vs-rest baseline on ``trials``.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key shared by the methods (paired trials).
+    model
+        The :class:`~scrppl.kway.models.KwayModel` (``T = K`` targets, in category order).
+    trials
+        From :func:`make_kway_trials`, transformed with the models' transform.
+    binary
+        The ``T`` binary viewpoint models stacked (arrays with a leading target axis, ``mu (T, N, 2, A, E,
+        S)``), for ``one_vs_rest``; omitted: that method is left out.
+    filter
+        ``"instance"`` or ``"naive_bayes"`` (used by every method).
+    config
+        :class:`~scrppl.planning.PlannerConfig` of the entropy planner (its ``planner`` is ignored:
+        ``planning`` uses ``"sampled"``, the baselines ``"random"``).
+    n_steps
+        Views per trial (default ``A``).
+    categories
+        Category names for the coordinates (default: indices).
+    keep_probabilities
+        Also store ``p_class (method, trial, step, category)``.
+    chunk_size
+        Trials per compiled call.
+    progress
+        Progress bars.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``predicted``, ``correct``, ``p_true``, ``class_entropy``, ``azimuth`` ``(method, trial, step)``,
+        ``views_to_confidence`` ``(method, trial)``; the trials' truth along ``trial``.
+    """
+    check_kway_model(model)
+    if filter not in KF.FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; expected one of {KF.FILTERS}")
+    n_t, _, n_k = model.mu.shape[:3]
+    if n_t != n_k:
+        raise ValueError(
+            f"the experiment needs one target detector per category; got T={n_t}, K={n_k}"
+        )
+    if trials.responses.shape[1:] != (n_t,) + model.grid_shape:
+        raise ValueError(
+            f"trials have responses of shape {trials.responses.shape[1:]} (T, A, E, S) but the model "
+            f"needs {(n_t,) + model.grid_shape}"
+        )
+    n_a = model.mu.shape[3]
+    n_steps = n_a if n_steps is None else int(n_steps)
+    if config.mode != "azimuth":
+        raise ValueError(
+            f"the K-way experiment moves in azimuth on its start ring (mode 'azimuth'), got "
+            f"{config.mode!r}"
+        )
+    if not 1 <= n_steps <= n_a:
+        raise ValueError(f"n_steps must lie in 1..{n_a}, got {n_steps}")
+    plan = config._replace(planner="sampled")
+    rand = config._replace(planner="random")
+    _check_config(plan)
+    if binary is not None and (np.shape(binary.mu)[0] != n_t or np.shape(binary.mu)[2] != 2):
+        raise ValueError(
+            f"binary models must have shape (T={n_t}, N, 2, A, E, S), got {np.shape(binary.mu)}"
+        )
+    dummy = binary if binary is not None else ResponseModel(*(x[:, :, :2] for x in model))
+    opts = dict(filter=filter, n_steps=n_steps, chunk_size=chunk_size, progress=progress)
+    runs = {
+        "planning": _run(
+            key, model, dummy, trials, config=plan, ovr=False, desc="kway/planning", **opts
+        )
+    }
+    runs["random"] = _run(
+        key, model, dummy, trials, config=rand, ovr=binary is not None, desc="kway/random", **opts
+    )
+    methods = ["planning", "random"] + (["one_vs_rest"] if binary is not None else [])
+    cat = np.asarray(trials.category)
+    per = {}
+    for m in methods:
+        views, observed, p_kway, p_ovr = runs["random" if m == "one_vs_rest" else m]
+        if m == "one_vs_rest":  # p(present) of the K binary filters, normalised over categories
+            p = np.exp(p_ovr - p_ovr.max(-1, keepdims=True))
+        else:
+            p = p_kway
+        met = class_metrics(p, cat)
+        met["azimuth"] = views[..., 0]
+        met["p_class"] = p / p.sum(-1, keepdims=True)
+        per[m] = met
+    dims = ("method", "trial", "step")
+    data = {
+        v: (dims, np.stack([per[m][v] for m in methods]))
+        for v in ("predicted", "correct", "p_true", "class_entropy", "azimuth")
+    }
+    data["views_to_confidence"] = (
+        dims[:2],
+        np.stack([per[m]["views_to_confidence"] for m in methods]),
+    )
+    if keep_probabilities:
+        data["p_class"] = (
+            (*dims, "category"),
+            np.stack([per[m]["p_class"] for m in methods]).astype(np.float32),
+        )
+    names = list(categories) if categories is not None else list(range(n_k))
+    start = np.asarray(trials.start)
+    coords = {
+        "method": methods,
+        "trial": np.arange(cat.shape[0]),
+        "step": np.arange(1, n_steps + 1),
+        "category": names,
+        "true_category": ("trial", [names[c] for c in cat]),
+        "category_index": ("trial", cat),
+        "instance": ("trial", np.asarray(trials.instance)),
+        "pose": ("trial", np.asarray(trials.pose)),
+        "start_azimuth": ("trial", start[:, 0]),
+    }
+    attrs = {
+        "filter": filter,
+        "planner_config": json.dumps(plan._asdict()),
+        "n_draws": int(model.n_draws),
+        "confidence_threshold": M.CONFIDENCE,
+    }
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def summarise_kway(ds: xr.Dataset, seed: int = 0, n_boot: int = 1000) -> xr.Dataset:
+    """Means over trials with percentile-bootstrap 95% intervals, per method and step.
+
+    Returns ``accuracy``, ``p_true``, ``class_entropy`` ``(method, step)`` and ``views_to_confidence``
+    ``(method,)``, each with ``_lo`` and ``_hi``.
+    """
+    out = {}
+    for var, src in (
+        ("accuracy", "correct"),
+        ("p_true", "p_true"),
+        ("class_entropy", "class_entropy"),
+        ("views_to_confidence", "views_to_confidence"),
+    ):
+        res = [
+            M.bootstrap_mean(seed, ds[src].sel({"method": m}).values.astype(float), n_boot)
+            for m in ds["method"].values
+        ]
+        dims = ("method",) if var == "views_to_confidence" else ("method", "step")
+        for i, suffix in enumerate(("", "_lo", "_hi")):
+            out[var + suffix] = (dims, np.stack([r[i] for r in res]))
+    return xr.Dataset(out, coords={"method": ds["method"], "step": ds["step"]})
+
+
+def compare_kway(
+    ds: xr.Dataset,
+    method: str = "planning",
+    baseline: str = "random",
+    seed: int = 0,
+    n_boot: int = 2000,
+) -> dict:
+    """Paired differences ``method - baseline`` on the same trials, with bootstrap 95% intervals.
+
+    Returns ``{"accuracy": {"mean", "lo", "hi"} (lists over steps), "p_true": ..., "class_entropy": ...,
+    "views_to_confidence": {"mean", "lo", "hi"} (floats)}``.
+    """
+    names = ds["method"].values.tolist()
+    for m in (method, baseline):
+        if m not in names:
+            raise ValueError(f"method {m!r} is not in the experiment ({names})")
+    out = {}
+    for var, src in (
+        ("accuracy", "correct"),
+        ("p_true", "p_true"),
+        ("class_entropy", "class_entropy"),
+        ("views_to_confidence", "views_to_confidence"),
+    ):
+        a = ds[src].sel({"method": method}).values.astype(float)
+        b = ds[src].sel({"method": baseline}).values.astype(float)
+        d, lo, hi = M.paired_bootstrap_difference(seed, a, b, n_boot)
+        conv = float if np.ndim(d) == 0 else (lambda x: np.asarray(x).tolist())
+        out[var] = {"mean": conv(d), "lo": conv(lo), "hi": conv(hi)}
+    return out
+
+
+def confusion_matrices(ds: xr.Dataset, steps: Sequence[int] = CONFUSION_STEPS) -> xr.DataArray:
+    """Row-normalised confusion matrices ``(method, step, true, predicted)`` after the given steps.
+
+    Entry ``[m, j, a, b]`` is the fraction of trials of true category ``a`` that method ``m`` assigned to
+    ``b`` after ``steps[j]`` views (NaN rows for a category without trials).
+    """
+    steps = [int(s) for s in steps if int(s) <= ds.sizes["step"]]
+    n_k = ds.sizes["category"]
+    truth = ds["category_index"].values
+    out = np.zeros((ds.sizes["method"], len(steps), n_k, n_k))
+    for i, m in enumerate(ds["method"].values):
+        for j, s in enumerate(steps):
+            pred = ds["predicted"].sel({"method": m, "step": s}).values
+            np.add.at(out[i, j], (truth, pred), 1.0)
+    with np.errstate(invalid="ignore"):
+        out = out / out.sum(-1, keepdims=True)
+    cats = ds["category"].values
+    return xr.DataArray(
+        out,
+        dims=("method", "step", "true", "predicted"),
+        coords={"method": ds["method"].values, "step": steps, "true": cats, "predicted": cats},
+        name="confusion",
+    )

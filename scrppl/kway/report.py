@@ -1,0 +1,91 @@
+"""The K-way section of ``report.md``: :func:`kway_markdown` turns ``kway-summary.json`` into Markdown."""
+
+from __future__ import annotations
+
+__all__ = ["kway_markdown", "TITLE"]
+
+TITLE = "Which object is it? K-way recognition"
+
+_NAMES = {
+    "planning": "K-way filter, entropy planning",
+    "random": "K-way filter, random views",
+    "one_vs_rest": "K one-vs-rest binary filters",
+}
+
+
+def _ci(mean: float, lo: float, hi: float, digits: int = 3) -> str:
+    return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _experiment(e: dict, label: str) -> str:
+    steps = e["steps"]
+    head = (
+        ["method"]
+        + [f"{k} view{'s' if k > 1 else ''}" for k in steps]
+        + ["views to p(true) > 0.95"]
+    )
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m, row in e["methods"].items():
+        acc = row["accuracy"]
+        cells = [_ci(acc["mean"][i], acc["lo"][i], acc["hi"][i]) for i in range(len(steps))]
+        v = row["views_to_confidence"]
+        lines.append(
+            f"| {_NAMES.get(m, m)} | "
+            + " | ".join(cells)
+            + f" | {_ci(v['mean'], v['lo'], v['hi'], 2)} |"
+        )
+    d = e["planning_minus_random"]
+    vd = d["views_to_confidence"]
+    text = (
+        f"**{label}** ({e['n_trials']} trials): accuracy of the MAP category after each number of views, "
+        "mean [95% bootstrap interval]\n\n" + "\n".join(lines) + "\n\n"
+        f"Planning minus random on the same trials: views to confidence {_ci(vd['mean'], vd['lo'], vd['hi'], 2)}"
+    )
+    acc_d = d["accuracy"]
+    n = len(acc_d["mean"])
+    idx = [k - 1 for k in steps if k - 1 < n]
+    text += "; accuracy " + ", ".join(
+        f"after {i + 1}: {_ci(acc_d['mean'][i], acc_d['lo'][i], acc_d['hi'][i])}" for i in idx
+    )
+    if "random_minus_one_vs_rest" in e:
+        r = e["random_minus_one_vs_rest"]["views_to_confidence"]
+        text += (
+            f". The K-way filter (random views) minus one-vs-rest on the same views: views to confidence "
+            f"{_ci(r['mean'], r['lo'], r['hi'], 2)}"
+        )
+    return text + ".\n"
+
+
+def _recall(summary: dict, e: dict) -> str:
+    cats = summary["categories"]
+    head = ["method", "views"] + cats
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m, by_step in e["confusion"].items():
+        for step, mat in by_step.items():
+            lines.append(
+                f"| {_NAMES.get(m, m)} | {step} | "
+                + " | ".join(f"{mat[i][i]:.2f}" for i in range(len(cats)))
+                + " |"
+            )
+    return (
+        "Per-category recall (the diagonal of the row-normalised confusion matrices; the matrices are in "
+        "`kway-summary.json` and `figures/kway-confusion.png`):\n\n" + "\n".join(lines) + "\n"
+    )
+
+
+def kway_markdown(summary: dict) -> str:
+    """The report section for a ``kway-summary.json`` (:func:`scrppl.kway.study.summary_dict`)."""
+    cfg = summary.get("planner_config", {})
+    text = (
+        f"## {TITLE}\n\n"
+        f"Held-out instances of all {len(summary['categories'])} categories ({', '.join(summary['categories'])}), "
+        f"hidden pose, random start; at every view the {summary['detector']} detectors of every category "
+        f"respond. Filter: {summary.get('filter')}; planner: sampled expected {cfg.get('objective', '?')} "
+        f"entropy, M = {cfg.get('n_samples', '?')}.\n\n"
+    )
+    if summary.get("diagnostics_failed"):
+        text += f"_Fits used despite failed MCMC diagnostics: {', '.join(summary['diagnostics_failed'])}._\n\n"
+    text += _experiment(summary["trials"], "Paper-sized experiment")
+    if "large" in summary:
+        text += "\n" + _experiment(summary["large"], "Large experiment")
+    return text + "\n" + _recall(summary, summary["trials"])

@@ -1,0 +1,269 @@
+"""The K-way study of ``scrppl kway`` as library functions: models, both experiments, summaries, files.
+
+:func:`run_kway_study` reads (or fits) one detector family's K-way models, draws the trials, runs the
+paper-sized experiment (160 trials) and a large one, and summarises them; :func:`save_kway_study` writes
+``kway/kway-<detector>.nc``, ``kway-trials.nc``, ``kway-trials-large.nc`` and ``kway-summary.json``
+under the output folder. The command line only parses, calls these and draws the figures.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import numpy as np
+import xarray as xr
+
+from scrppl._io import atomic_path, read_json, read_netcdf, write_netcdf
+from scrppl.kway.experiment import (
+    CONFUSION_STEPS,
+    compare_kway,
+    confusion_matrices,
+    make_kway_trials,
+    run_kway_experiment,
+    summarise_kway,
+)
+from scrppl.kway.models import (
+    KwayFit,
+    diagnostic_failures,
+    fit_kway,
+    kway_from_fits,
+    kway_path,
+    save_kway,
+    stack_models,
+)
+from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig
+
+__all__ = [
+    "KwayStudy",
+    "run_kway_study",
+    "save_kway_study",
+    "load_kway_results",
+    "summary_dict",
+    "REPORT_STEPS",
+]
+
+#: Steps (views) at which the summary reports accuracy.
+REPORT_STEPS = (1, 2, 4, 8)
+
+
+class KwayStudy(NamedTuple):
+    """Everything :func:`run_kway_study` produced.
+
+    Attributes
+    ----------
+    fit
+        The K-way models (:class:`~scrppl.kway.models.KwayFit`, thinned to the experiment's draws).
+    trials
+        The paper-sized experiment (:func:`~scrppl.kway.experiment.run_kway_experiment`).
+    large
+        The large experiment, or ``None``.
+    summary
+        :func:`summary_dict` of both.
+    """
+
+    fit: KwayFit
+    trials: xr.Dataset
+    large: xr.Dataset | None
+    summary: dict
+
+
+def _binary_models(models_dir: Path, detector: str, targets, n_draws: int) -> ResponseModel:
+    """The ``T`` binary viewpoint models of the one-vs-rest baseline, stacked along a leading axis.
+
+    The one place where saved binary fits are read for this package: their posterior predictive as
+    :func:`scrppl.models.predictive.to_response_model` makes it (a new negative from a random
+    non-target category), thinned to ``n_draws``.
+    """
+    from scrppl.models.io import load_posterior, model_path
+    from scrppl.models.predictive import to_response_model
+
+    models = [
+        to_response_model(
+            load_posterior(model_path(models_dir, "hierarchical", detector, t)), n_draws
+        )
+        for t in targets
+    ]
+    return ResponseModel(*stack_models(models, n_draws))
+
+
+def run_kway_study(
+    seed: int,
+    table: xr.Dataset,
+    models_dir: str | Path,
+    detector: str,
+    *,
+    filter: str = "instance",
+    trials: int = 160,
+    large_trials: int = 0,
+    n_samples: int = 256,
+    max_draws: int = 8,
+    large_max_draws: int = 4,
+    objective: str = "class",
+    accept_diagnostics: bool = False,
+    sampler=None,
+    progress: bool = True,
+    log: Callable[[str], None] = print,
+) -> KwayStudy:
+    """One family's K-way models and experiments.
+
+    Parameters
+    ----------
+    seed
+        Seed of everything (trials, planner, fits).
+    table
+        The response table; every category must be a target.
+    models_dir
+        Folder of the saved hierarchical fits (``scrppl fit``); targets without a current fit are fitted
+        here (:func:`~scrppl.kway.models.fit_kway` with ``sampler``) and saved there.
+    detector
+        The detector family.
+    filter
+        ``"instance"`` or ``"naive_bayes"``.
+    trials, large_trials
+        Trials of the two experiments (``0`` skips the large one).
+    n_samples
+        ``M`` per planning decision.
+    max_draws, large_max_draws
+        Posterior draws per target kept for filtering and planning in each experiment.
+    objective
+        Entropy the planner minimises (``"class"``: ``H(k)``; ``"joint"``: ``H(k, theta)``).
+    accept_diagnostics
+        Use fits that failed their MCMC diagnostics (otherwise ``ValueError``).
+    sampler
+        NUTS settings for missing fits.
+    progress, log
+        Progress bars; where progress lines go.
+    """
+    from scrppl.models import transforms
+    from scrppl.models.io import model_path, save_posterior
+
+    models_dir = Path(models_dir)
+    categories = [str(c) for c in table["category"].values]
+    if any(not model_path(models_dir, "hierarchical", detector, t).exists() for t in categories):
+        log(f"[kway] fitting the {detector} models of {categories} (no saved fits in {models_dir})")
+        _, trees = fit_kway(jax.random.key(seed), table, detector, sampler, progress=progress)
+        for t, tree in trees.items():
+            save_posterior(model_path(models_dir, "hierarchical", detector, t), tree)
+    fit = kway_from_fits(models_dir, detector, categories, n_draws=max_draws)
+    failed = diagnostic_failures(fit.info)
+    if failed and not accept_diagnostics:
+        raise ValueError(
+            f"the {detector} fits of {sorted(failed)} failed their MCMC diagnostics ({failed}); refit "
+            "with longer chains or pass --accept-diagnostics"
+        )
+    name = fit.info["transform"]
+    trans = lambda raw: transforms.apply(name, raw)  # noqa: E731
+    config = PlannerConfig(objective=objective, n_samples=int(n_samples))
+    key = jax.random.key(seed)
+    results = []
+    for n, draws, k in ((trials, max_draws, 0), (large_trials, large_max_draws, 1)):
+        if n <= 0:
+            results.append(None)
+            continue
+        sub = fit if draws == max_draws else kway_from_fits(models_dir, detector, categories, draws)
+        tr = make_kway_trials(
+            jax.random.fold_in(key, 2 * k), table, detector, int(n), transform=trans
+        )
+        binary = _binary_models(models_dir, detector, categories, draws)
+        log(f"[kway] {detector}: {n} trials, K = {len(categories)}, {draws} draws, M = {n_samples}")
+        results.append(
+            run_kway_experiment(
+                jax.random.fold_in(key, 2 * k + 1),
+                sub.model,
+                tr,
+                binary=binary,
+                filter=filter,
+                config=config,
+                categories=categories,
+                keep_probabilities=k == 0,
+                progress=progress,
+            )
+        )
+        results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
+    summary = summary_dict(results[0], results[1], fit.info)
+    return KwayStudy(fit, results[0], results[1], summary)
+
+
+def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
+    s = summarise_kway(ds, n_boot=n_boot)
+    steps = [k for k in REPORT_STEPS if k <= ds.sizes["step"]]
+    out = {"n_trials": int(ds.sizes["trial"]), "steps": steps, "methods": {}}
+    for m in ds["method"].values.tolist():
+        row = {}
+        for var in ("accuracy", "p_true", "class_entropy"):
+            row[var] = {
+                part: [float(s[var + suf].sel({"method": m, "step": k})) for k in steps]
+                for part, suf in (("mean", ""), ("lo", "_lo"), ("hi", "_hi"))
+            }
+        row["views_to_confidence"] = {
+            part: float(s["views_to_confidence" + suf].sel({"method": m}))
+            for part, suf in (("mean", ""), ("lo", "_lo"), ("hi", "_hi"))
+        }
+        out["methods"][m] = row
+    out["planning_minus_random"] = compare_kway(ds, "planning", "random")
+    if "one_vs_rest" in ds["method"].values:
+        out["random_minus_one_vs_rest"] = compare_kway(ds, "random", "one_vs_rest")
+    conf = confusion_matrices(ds, CONFUSION_STEPS)
+    out["confusion"] = {
+        m: {
+            str(int(k)): np.nan_to_num(conf.sel({"method": m, "step": k}).values).round(4).tolist()
+            for k in conf["step"].values
+        }
+        for m in conf["method"].values.tolist()
+    }
+    return out
+
+
+def summary_dict(trials: xr.Dataset, large: xr.Dataset | None, info: dict) -> dict:
+    """The numbers the report and the book quote.
+
+    Per experiment and method: accuracy, ``p(true)`` and entropy after :data:`REPORT_STEPS` views with
+    95% intervals; paired differences; confusion matrices.
+    """
+    out = {
+        "detector": info["detector"],
+        "categories": info["categories"],
+        "filter": trials.attrs.get("filter"),
+        "planner_config": json.loads(trials.attrs.get("planner_config", "{}")),
+        "diagnostics_failed": sorted(diagnostic_failures(info)),
+        "trials": _experiment_summary(trials, 1000),
+    }
+    if large is not None:
+        out["large"] = _experiment_summary(large, 400)
+    return out
+
+
+def save_kway_study(study: KwayStudy, out: str | Path) -> list[Path]:
+    """Write the study under ``out``: the models, both experiments and ``kway-summary.json``."""
+    out = Path(out)
+    paths = [save_kway(kway_path(out / "kway", study.fit.info["detector"]), study.fit)]
+    paths.append(write_netcdf(study.trials, out / "kway-trials.nc"))
+    if study.large is not None:
+        paths.append(write_netcdf(study.large, out / "kway-trials-large.nc"))
+    path = out / "kway-summary.json"
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(study.summary, indent=1))
+    paths.append(path)
+    return paths
+
+
+def load_kway_results(out: str | Path, large: bool = False) -> tuple[xr.Dataset, dict]:
+    """The experiment ``scrppl kway`` wrote under ``out``, and its ``kway-summary.json``.
+
+    ``kway-trials.nc`` (or ``kway-trials-large.nc``); ``FileNotFoundError`` naming the command if missing.
+    """
+    out = Path(out)
+    name = "kway-trials-large.nc" if large else "kway-trials.nc"
+    for rel in (name, "kway-summary.json"):
+        if not (out / rel).exists():
+            raise FileNotFoundError(
+                f"{out / rel} does not exist (it is written by `scrppl kway --out {out}`)"
+            )
+    return read_netcdf(out / name, "K-way trials"), read_json(
+        out / "kway-summary.json", "K-way summary"
+    )

@@ -1,0 +1,550 @@
+"""K-way recognition: filters against brute-force enumeration, the binary case, the planner's limit,
+the models read from hierarchical fits, save/load and input checks."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import xarray as xr
+from scipy import stats
+from scipy.special import logsumexp
+
+from scrppl import belief as B
+from scrppl.kway import filter as KF
+from scrppl.kway import planning as KP
+from scrppl.kway.experiment import (
+    class_metrics,
+    confusion_matrices,
+    make_kway_trials,
+    run_kway_experiment,
+)
+from scrppl.kway.models import (
+    KwayFit,
+    KwayModel,
+    check_kway_model,
+    kway_response_model,
+    load_kway,
+    save_kway,
+    stack_models,
+    target_model,
+)
+from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig
+
+
+def random_kway(rng, t=2, n=3, k=3, a=4, e=1, s=1):
+    mu = rng.normal(0.0, 1.5, size=(t, n, k, a, e, s))
+    sigma = rng.uniform(0.5, 1.2, size=(t, n, k, a, e, s))
+    tau = rng.uniform(0.3, 0.8, size=(t, n, k))
+    return KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau))), (mu, sigma, tau)
+
+
+def observations(rng, j, t, a):
+    return rng.normal(0.0, 2.0, size=(j, t)), rng.integers(0, a, size=j)
+
+
+def brute_naive_bayes(params, f, phi):
+    """Eq. 3 with a vector observation, by enumeration over (k, theta), targets and draws."""
+    mu, sigma, tau = params
+    n_t, n_n, n_k, n_a = mu.shape[:4]
+    logp = np.zeros((n_k, n_a))
+    for k in range(n_k):
+        for theta in range(n_a):
+            for fj, pj in zip(f, phi, strict=True):
+                a = (pj - theta) % n_a
+                for t in range(n_t):
+                    sd = np.sqrt(sigma[t, :, k, a, 0, 0] ** 2 + tau[t, :, k] ** 2)
+                    logp[k, theta] += np.log(
+                        np.mean(stats.norm.pdf(fj[t], mu[t, :, k, a, 0, 0], sd))
+                    )
+    return logp - logsumexp(logp)
+
+
+def brute_instance(params, f, phi):
+    """Per target and draw, the views' joint Gaussian (cov diag(sigma^2) + tau^2 11^T) by a dense solve."""
+    mu, sigma, tau = params
+    n_t, n_n, n_k, n_a = mu.shape[:4]
+    logp = np.zeros((n_k, n_a))
+    for k in range(n_k):
+        for theta in range(n_a):
+            a = (phi - theta) % n_a
+            for t in range(n_t):
+                ll = [
+                    stats.multivariate_normal.logpdf(
+                        f[:, t],
+                        mu[t, n, k, a, 0, 0],
+                        np.diag(sigma[t, n, k, a, 0, 0] ** 2) + tau[t, n, k] ** 2,
+                    )
+                    for n in range(n_n)
+                ]
+                logp[k, theta] += logsumexp(ll) - np.log(n_n)
+    return logp - logsumexp(logp)
+
+
+@pytest.mark.parametrize("kind", ["naive_bayes", "instance"])
+def test_filter_matches_enumeration(rng, kind):
+    model, params = random_kway(rng)
+    f, phi = observations(rng, 4, 2, 4)
+    belief = KF.init_belief(kind, model)
+    for fj, pj in zip(f, phi, strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj, jnp.float32), int(pj))
+    want = (brute_naive_bayes if kind == "naive_bayes" else brute_instance)(params, f, phi)
+    np.testing.assert_allclose(KF.joint_log_belief(belief), want, atol=2e-4)
+    p = np.exp(want)
+    np.testing.assert_allclose(KF.class_marginal(belief), p.sum(1), atol=1e-5)
+    np.testing.assert_allclose(KF.pose_marginal(belief), p.sum(0), atol=1e-5)
+    np.testing.assert_allclose(KF.joint_entropy(belief), -(p * np.log(p)).sum(), atol=1e-4)
+    q = p.sum(1)
+    np.testing.assert_allclose(KF.class_entropy(belief), -(q * np.log(q)).sum(), atol=1e-4)
+    r = p.sum(0)
+    np.testing.assert_allclose(KF.pose_entropy(belief), -(r * np.log(r)).sum(), atol=1e-4)
+
+
+@pytest.mark.parametrize("kind", ["naive_bayes", "instance"])
+def test_two_classes_one_detector_is_the_binary_filter(rng, kind):
+    model, _ = random_kway(rng, t=1, n=4, k=2, a=8)
+    binary = target_model(model, 0)
+    kb = KF.init_belief(kind, model)
+    bb = B.init_belief(kind, binary)
+    for fj, pj in zip(*observations(rng, 5, 1, 8), strict=True):
+        kb = KF.update(model, kb, jnp.asarray(fj, jnp.float32), int(pj))
+        bb = B.update(binary, bb, jnp.float32(fj[0]), int(pj))
+        # the same arithmetic up to the order of float32 operations (a few ulp)
+        np.testing.assert_allclose(
+            KF.joint_log_belief(kb), B.joint_log_belief(bb), rtol=1e-6, atol=1e-6
+        )
+    km = KF.predictive_mixture(model, kb, 3)
+    bm = B.predictive_mixture(binary, bb, 3)
+    np.testing.assert_allclose(km.log_state + km.log_draw[0], bm.log_weight, atol=1e-5)
+    np.testing.assert_array_equal(km.mean[0], bm.mean)
+    np.testing.assert_array_equal(km.var[0], bm.var)
+    f = jnp.linspace(-3, 3, 7)
+    np.testing.assert_allclose(
+        KF.mixture_posterior(km, f[:, None]), B.mixture_posterior(bm, f), atol=1e-5
+    )
+
+
+@pytest.mark.parametrize("kind", ["naive_bayes", "instance"])
+def test_mixture_posterior_is_the_filter_update(rng, kind):
+    model, _ = random_kway(rng, t=3)
+    belief = KF.init_belief(kind, model)
+    for fj, pj in zip(*observations(rng, 2, 3, 4), strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj, jnp.float32), int(pj))
+    f = jnp.asarray(rng.normal(size=3), jnp.float32)
+    mix = KF.predictive_mixture(model, belief, 1)
+    after = KF.joint_log_belief(KF.update(model, belief, f, 1))
+    np.testing.assert_allclose(KF.mixture_posterior(mix, f), after, atol=1e-5)
+    h = KP.posterior_entropy(mix, f[None])
+    np.testing.assert_allclose(h[0], KF.joint_entropy(KF.update(model, belief, f, 1)), atol=1e-4)
+
+
+def brute_expected_entropy(params, past_f, past_phi, phi, objective):
+    """E_f[H] for T = 2 by a dense grid over the new response vector; every density by a joint solve.
+
+    Per target t, draw n and state, the past responses and the new one are jointly Gaussian (one
+    instance effect); log p(new | past) comes from the Schur complement.
+    """
+    mu, sigma, tau = params
+    n_t, n_n, n_k, n_a = mu.shape[:4]
+    views = np.r_[past_phi, phi]
+    cond_m = np.zeros((n_t, n_n, n_k, n_a))
+    cond_v = np.zeros_like(cond_m)
+    log_past = np.zeros_like(cond_m)
+    for t in range(n_t):
+        for n in range(n_n):
+            for k in range(n_k):
+                for th in range(n_a):
+                    a = (views - th) % n_a
+                    m = mu[t, n, k, a, 0, 0]
+                    cov = np.diag(sigma[t, n, k, a, 0, 0] ** 2) + tau[t, n, k] ** 2
+                    s11, s12, s22 = cov[:-1, :-1], cov[:-1, -1], cov[-1, -1]
+                    sol = np.linalg.solve(s11, s12)
+                    cond_m[t, n, k, th] = m[-1] + sol @ (past_f[:, t] - m[:-1])
+                    cond_v[t, n, k, th] = s22 - s12 @ sol
+                    log_past[t, n, k, th] = stats.multivariate_normal.logpdf(
+                        past_f[:, t], m[:-1], s11
+                    )
+    lo = (cond_m - 7 * np.sqrt(cond_v)).min(axis=(1, 2, 3))
+    hi = (cond_m + 7 * np.sqrt(cond_v)).max(axis=(1, 2, 3))
+    g0, g1 = np.linspace(lo[0], hi[0], 301), np.linspace(lo[1], hi[1], 301)
+    grids = (g0, g1)
+    # log p(f_t | state, past) per target on its grid: (G, K, A)
+    per_t = []
+    for t in range(n_t):
+        w = log_past[t] - logsumexp(log_past[t], axis=0)  # posterior over draws given the state
+        lp = w[None] + stats.norm.logpdf(
+            grids[t][:, None, None, None], cond_m[t][None], np.sqrt(cond_v[t])[None]
+        )
+        per_t.append(logsumexp(lp, axis=1))
+    log_state = sum(logsumexp(log_past[t], axis=0) - np.log(n_n) for t in range(n_t))
+    log_state = log_state - logsumexp(log_state)
+    joint = log_state[None, None] + per_t[0][:, None] + per_t[1][None, :]  # (G0, G1, K, A)
+    log_pf = logsumexp(joint, axis=(2, 3))
+    post = joint - log_pf[..., None, None]
+    p = np.exp(post)
+    if objective == "class":
+        p = p.sum(-1)
+    h = -(p * np.log(np.maximum(p, 1e-300))).reshape(p.shape[0], p.shape[1], -1).sum(-1)
+    dens = np.exp(log_pf)
+    return np.trapezoid(np.trapezoid(dens * h, g1, axis=1), g0), np.trapezoid(
+        np.trapezoid(dens, g1, axis=1), g0
+    )
+
+
+@pytest.mark.parametrize("objective", ["joint", "class"])
+def test_sampled_planner_converges_to_brute_force(rng, objective):
+    model, params = random_kway(rng, t=2, n=2, k=3, a=4)
+    past_f, past_phi = observations(rng, 2, 2, 4)
+    past_f = past_f / 2
+    belief = KF.init_belief("instance", model)
+    for fj, pj in zip(past_f, past_phi, strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj, jnp.float32), int(pj))
+    want, mass = brute_expected_entropy(params, past_f, past_phi, 2, objective)
+    assert abs(mass - 1.0) < 1e-4  # the grid holds the whole predictive
+    mix = KF.predictive_mixture(model, belief, 2)
+    m = 40_000
+    f = KP.sample_responses(jax.random.key(3), mix, m)
+    h = np.asarray(KP.posterior_entropy(mix, f, objective))
+    est = float(KP.sampled_expected_entropy(jax.random.key(3), mix, m, objective))
+    np.testing.assert_allclose(est, h.mean(), rtol=1e-5)
+    assert abs(est - want) < 4 * h.std() / np.sqrt(m)
+    # and the decision over candidates scores them with the same estimator
+    views = jnp.asarray([[2, 0, 0], [0, 0, 0]])
+    scores = KP.expected_entropies(
+        jax.random.key(3), model, belief, views, PlannerConfig(objective=objective, n_samples=m)
+    )
+    np.testing.assert_allclose(scores[0], est, rtol=1e-4)
+
+
+def test_choose_view_respects_visited_and_random(rng):
+    model, _ = random_kway(rng, t=2, n=2, k=3, a=4)
+    belief = KF.update(model, KF.init_belief("naive_bayes", model), jnp.zeros(2), 0)
+    visited = jnp.zeros((4, 1, 1), bool).at[0].set(True).at[2].set(True)
+    avail = jnp.ones((4, 1, 1), bool)
+    for planner in ("sampled", "random"):
+        cfg = PlannerConfig(planner=planner, n_samples=64)
+        for i in range(5):
+            view, found, scores = KP.choose_view(
+                jax.random.key(i), model, belief, jnp.asarray([0, 0, 0]), visited, avail, cfg
+            )
+            assert bool(found) and int(view[0]) in (1, 3)
+            assert np.isinf(np.asarray(scores)[[0, 2]]).all()
+    view, found, _ = KP.choose_view(
+        jax.random.key(0),
+        model,
+        belief,
+        jnp.asarray([0, 0, 0]),
+        jnp.ones((4, 1, 1), bool),
+        avail,
+        PlannerConfig(),
+    )
+    assert not bool(found)
+
+
+def test_input_errors(rng):
+    model, _ = random_kway(rng)
+    belief = KF.init_belief("naive_bayes", model)
+    with pytest.raises(ValueError, match="shape \\(T,\\)"):
+        KF.update(model, belief, jnp.zeros(3), 0)
+    with pytest.raises(ValueError, match="not all finite"):
+        KF.update(model, belief, jnp.asarray([0.0, np.nan]), 0)
+    with pytest.raises(ValueError, match="robot azimuth"):
+        KF.update(model, belief, jnp.zeros(2), 9)
+    with pytest.raises(ValueError, match="unknown filter"):
+        KF.init_belief("kalman", model)
+    other, _ = random_kway(rng, k=4)
+    with pytest.raises(ValueError, match="another model"):
+        KF.update(other, belief, jnp.zeros(2), 0)
+    with pytest.raises(ValueError, match="not available for K-way"):
+        KP.choose_view(
+            jax.random.key(0),
+            model,
+            belief,
+            jnp.zeros(3, int),
+            jnp.zeros((4, 1, 1), bool),
+            jnp.ones((4, 1, 1), bool),
+            PlannerConfig(planner="quadrature"),
+        )
+    with pytest.raises(ValueError, match="visited mask"):
+        KP.choose_view(
+            jax.random.key(0),
+            model,
+            belief,
+            jnp.zeros(3, int),
+            jnp.zeros((5, 1, 1), bool),
+            jnp.ones((4, 1, 1), bool),
+            PlannerConfig(),
+        )
+    with pytest.raises(ValueError, match="tau must have shape"):
+        check_kway_model(KwayModel(model.mu, model.sigma, model.tau[:, :, :2]))
+    bad = KwayModel(model.mu, -model.sigma, model.tau)
+    with pytest.raises(ValueError, match="strictly positive"):
+        check_kway_model(bad)
+    with pytest.raises(ValueError, match="differ in"):
+        stack_models([target_model(model, 0), target_model(other, 0)])
+    with pytest.raises(ValueError, match=r"prior must have shape \(K, A\)"):
+        KF.init_belief("instance", model, prior=np.ones((2, 4)))
+
+
+def fake_posterior(rng, target, negs, scale=2.0, a=4, chains=2, draws=5):
+    """A DataTree shaped like fit_hierarchical's output (only what the K-way reader uses)."""
+    sh = (chains, draws)
+    post = xr.Dataset(
+        {
+            "mu": (
+                ("chain", "draw", "class", "azimuth", "elevation", "scale"),
+                rng.normal(size=sh + (2, a, 1, 1)),
+            ),
+            "sigma": (("chain", "draw", "class", "azimuth"), rng.uniform(0.5, 1, size=sh + (2, a))),
+            "tau": (("chain", "draw", "class"), rng.uniform(0.1, 0.5, size=sh + (2,))),
+            "kappa": (("chain", "draw"), rng.uniform(0.1, 0.5, size=sh)),
+            "category_contrast": (("chain", "draw", "ccd"), rng.normal(size=sh + (len(negs) - 1,))),
+        }
+    )
+    tree = xr.DataTree.from_dict({"posterior": post})
+    tree.attrs.update(
+        kind="hierarchical",
+        target=target,
+        transform="identity",
+        detector="dpm",
+        meta=json.dumps({"scale": scale, "neg_categories": negs, "target": target}),
+        diagnostics=json.dumps({"ok": True, "failures": []}),
+    )
+    return tree
+
+
+def test_kway_response_model_reads_the_category_shifts(rng):
+    cats = ["car", "bicycle", "shoe", "mouse"]
+    tree = fake_posterior(rng, "shoe", ["bicycle", "car", "mouse"])
+    model = kway_response_model(tree, cats)
+    post = tree["posterior"].to_dataset()
+    mu = post["mu"].values.reshape(10, 2, 4, 1, 1)
+    got = np.asarray(model.mu)
+    assert got.shape == (10, 4, 4, 1, 1)
+    np.testing.assert_allclose(got[:, 2], mu[:, 1], rtol=1e-6)  # the target's own category
+    shifts = got[:, [0, 1, 3]] - mu[:, None, 0]  # (N, 3, A, 1, 1)
+    # one shift per category, the same from every view, deviations from their mean (sum to zero) ...
+    np.testing.assert_allclose(shifts, np.broadcast_to(shifts[:, :, :1], shifts.shape), atol=1e-5)
+    np.testing.assert_allclose(shifts.sum(axis=1), 0.0, atol=1e-5)
+    # ... whose spread is the scale times the (orthonormal) contrasts' norm
+    c = post["category_contrast"].values.reshape(10, -1)
+    np.testing.assert_allclose(
+        (shifts[:, :, 0, 0, 0] ** 2).sum(1), 2.0**2 * (c**2).sum(1), rtol=1e-4
+    )
+    sig = post["sigma"].values.reshape(10, 2, 4)
+    np.testing.assert_allclose(np.asarray(model.sigma)[:, 0, :, 0, 0], sig[:, 0], rtol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(model.tau)[:, 2], post["tau"].values.reshape(10, 2)[:, 1], rtol=1e-6
+    )
+    with pytest.raises(ValueError, match="not the fit's target"):
+        kway_response_model(tree, ["car", "bicycle", "shoe"])
+
+
+def test_save_load_round_trip(rng, tmp_path):
+    model, _ = random_kway(rng, t=3, k=3)
+    info = {
+        "detector": "dpm",
+        "categories": ["a", "b", "c"],
+        "targets": ["a", "b", "c"],
+        "transform": "identity",
+        "diagnostics": {"a": {"ok": True}},
+    }
+    path = save_kway(tmp_path / "kway" / "kway-dpm.nc", KwayFit(model, info))
+    back = load_kway(path)
+    for x, y in zip(back.model, model, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert back.info == info
+    with pytest.raises(ValueError, match="targets"):
+        save_kway(tmp_path / "bad.nc", KwayFit(model, dict(info, targets=["a"])))
+    xr.Dataset({"x": ("i", [1.0])}).to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
+    with pytest.raises(ValueError, match="not a K-way"):
+        load_kway(tmp_path / "other.nc")
+    with pytest.raises(FileNotFoundError):
+        load_kway(tmp_path / "missing.nc")
+
+
+def test_class_metrics_and_confusion():
+    p = np.array([[[0.7, 0.2, 0.1], [0.96, 0.02, 0.02]], [[0.2, 0.3, 0.5], [0.1, 0.1, 0.8]]])
+    met = class_metrics(p, np.array([0, 1]))
+    np.testing.assert_array_equal(met["correct"], [[True, True], [False, False]])
+    np.testing.assert_allclose(met["p_true"], [[0.7, 0.96], [0.3, 0.1]])
+    np.testing.assert_array_equal(met["views_to_confidence"], [2, 3])
+    np.testing.assert_allclose(met["class_entropy"][0, 0], -(p[0, 0] * np.log(p[0, 0])).sum())
+    ds = xr.Dataset(
+        {"predicted": (("method", "trial", "step"), met["predicted"][None])},
+        coords={
+            "method": ["m"],
+            "step": [1, 2],
+            "category": ["a", "b", "c"],
+            "category_index": ("trial", [0, 1]),
+        },
+    )
+    conf = confusion_matrices(ds, steps=(1, 2, 4))
+    assert conf.sizes["step"] == 2
+    np.testing.assert_array_equal(
+        conf.sel({"method": "m", "step": 1}).values[:2], [[1, 0, 0], [0, 0, 1]]
+    )
+    assert np.isnan(conf.sel({"method": "m", "step": 1}).values[2]).all()
+
+
+def test_experiment_on_a_separable_table(rng):
+    """Responses that name the category outright: every method is right after one view."""
+    k, n_i, a = 3, 4, 4
+    cats = ["x", "y", "z"]
+    score = rng.normal(0, 0.1, size=(1, k, k, n_i, a, 1, 1))
+    for t in range(k):
+        score[0, t, t] += 3.0  # detector t fires on category t only
+    from scrppl.responses import empty_response_table
+    from scrppl.views import ViewGrid
+
+    split = np.array([["fit", "fit", "test", "test"]] * k)
+    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
+    table["score"].values[:] = score
+    trials = make_kway_trials(jax.random.key(0), table, "d", 12)
+    assert np.bincount(np.asarray(trials.category), minlength=3).tolist() == [4, 4, 4]
+    mu = np.zeros((k, 1, k, a, 1, 1))
+    for t in range(k):
+        mu[t, 0, t] = 3.0
+    model = KwayModel(
+        jnp.asarray(mu, jnp.float32),
+        jnp.full(mu.shape, 0.3, jnp.float32),
+        jnp.full((k, 1, k), 0.1, jnp.float32),
+    )
+    binary = ResponseModel(
+        jnp.asarray(np.concatenate([0 * mu[:, :, :1], 0 * mu[:, :, :1] + 3.0], 2), jnp.float32),
+        jnp.full((k, 1, 2, a, 1, 1), 0.3, jnp.float32),
+        jnp.full((k, 1, 2), 0.1, jnp.float32),
+    )
+    ds = run_kway_experiment(
+        jax.random.key(1),
+        model,
+        trials,
+        binary=binary,
+        config=PlannerConfig(n_samples=32),
+        n_steps=3,
+        categories=cats,
+    )
+    assert ds["method"].values.tolist() == ["planning", "random", "one_vs_rest"]
+    assert ds["correct"].values.all()
+    # every method visits distinct views
+    az = ds["azimuth"].values
+    assert all(len(set(row)) == 3 for row in az.reshape(-1, 3))
+    # random and one-vs-rest see the same views (paired)
+    np.testing.assert_array_equal(az[1], az[2])
+    # the same trials and key give the same numbers (the compiled runner is reused)
+    again = run_kway_experiment(
+        jax.random.key(1),
+        model,
+        trials,
+        binary=binary,
+        config=PlannerConfig(n_samples=32),
+        n_steps=3,
+        categories=cats,
+    )
+    xr.testing.assert_identical(ds, again)
+    # bad inputs are named before anything runs
+    with pytest.raises(ValueError, match="detector 'e'"):
+        make_kway_trials(jax.random.key(0), table, "e", 12)
+    with pytest.raises(ValueError, match="n_trials must be positive"):
+        make_kway_trials(jax.random.key(0), table, "d", 0)
+    with pytest.raises(ValueError, match="n_steps must lie in 1..4"):
+        run_kway_experiment(jax.random.key(1), model, trials, n_steps=5)
+    with pytest.raises(ValueError, match="moves in azimuth"):
+        run_kway_experiment(jax.random.key(1), model, trials, config=PlannerConfig(mode="all"))
+    with pytest.raises(ValueError, match="binary models must have shape"):
+        run_kway_experiment(
+            jax.random.key(1), model, trials, binary=ResponseModel(*(x[:2] for x in binary))
+        )
+    with pytest.raises(ValueError, match="one target detector per category"):
+        run_kway_experiment(jax.random.key(1), KwayModel(*(x[:2] for x in model)), trials)
+
+
+@pytest.mark.slow
+def test_fit_kway_recovers_the_category_means_and_round_trips(tmp_path):
+    """Short NUTS fits of a table with known means: the K-way reading recovers them; saved fits give
+    the same stack; the stack survives save/load."""
+    from scrppl.kway.models import diagnostic_failures, fit_kway, kway_from_fits, kway_path
+    from scrppl.models.io import model_path, save_posterior
+    from scrppl.models.mcmc import SamplerConfig
+    from scrppl.models.simulate import TrueViewpointModel, simulate_response_table
+    from scrppl.views import ViewGrid
+
+    grid = ViewGrid(4, (10.0,), (1.0,))
+    cats = ["c0", "c1", "c2"]
+    truth = {}
+    for i, t in enumerate(cats):
+        mu = np.zeros((2, 4, 1, 1))
+        mu[1] = (
+            2.0 + 0.5 * i + np.cos(np.arange(4) * np.pi / 2)[:, None, None]
+        )  # present: a profile
+        truth[("dpm", t)] = TrueViewpointModel(
+            mu, np.full((2, 4, 1, 1), 0.3), np.array([0.2, 0.2]), 0.0
+        )
+    table = simulate_response_table(jax.random.key(5), truth, cats, 8, grid, {"fit": 6, "test": 2})
+    config = SamplerConfig(num_warmup=200, num_samples=200, num_chains=2, chunk=200)
+    fit, trees = fit_kway(jax.random.key(1), table, "dpm", config, progress=False)
+    assert fit.info["categories"] == cats and fit.info["targets"] == cats
+    assert set(fit.info["diagnostics"]) == set(cats)
+    assert isinstance(diagnostic_failures(fit.info), dict)
+    mu = np.asarray(fit.model.mu).mean(axis=1)  # (T, K, A, 1, 1), posterior means
+    for t in range(3):
+        for k in range(3):
+            want = truth[("dpm", cats[t])].mu[int(t == k)]
+            np.testing.assert_allclose(mu[t, k], want, atol=0.5)
+    for t, tree in trees.items():
+        save_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t), tree)
+    again = kway_from_fits(tmp_path / "models", "dpm", cats)
+    for x, y in zip(again.model, fit.model, strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6)
+    back = load_kway(save_kway(kway_path(tmp_path / "kway", "dpm"), again))
+    for x, y in zip(back.model, again.model, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert back.info == again.info
+
+
+@pytest.mark.slow
+def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
+    from scrppl.cli import main
+    from scrppl.models.io import model_path, save_posterior
+    from scrppl.report import write_report
+    from scrppl.responses import empty_response_table, save_response_table
+    from scrppl.views import ViewGrid
+
+    cats = ["a", "b", "c"]
+    split = np.array([["fit", "fit", "test", "test"]] * 3)
+    table = empty_response_table(["dpm"], cats, cats, 4, ViewGrid(4, (10.0,), (1.0,)), split)
+    table["score"].values[:] = rng.normal(size=table["score"].shape)
+    save_response_table(table, tmp_path / "responses.nc")
+    for t in cats:
+        tree = fake_posterior(rng, t, [c for c in cats if c != t])
+        meta = json.loads(tree.attrs["meta"])
+        tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=2, categories=cats))
+        save_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t), tree)
+    argv = [
+        "kway",
+        "--out",
+        str(tmp_path),
+        "--profile",
+        "quick",
+        "--trials",
+        "6",
+        "--n-samples",
+        "8",
+        "--quiet",
+    ]
+    assert main(argv) == 0
+    for rel in (
+        "kway/kway-dpm.nc",
+        "kway-trials.nc",
+        "kway-summary.json",
+        "figures/kway-accuracy.png",
+        "figures/kway-confusion.png",
+    ):
+        assert (tmp_path / rel).exists(), rel
+    summary = json.loads((tmp_path / "kway-summary.json").read_text())
+    assert summary["categories"] == cats and summary["trials"]["n_trials"] == 6
+    assert set(summary["trials"]["methods"]) == {"planning", "random", "one_vs_rest"}
+    assert "## Which object is it? K-way recognition" in write_report(tmp_path).read_text()
+    assert main(["kway", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1
