@@ -6,7 +6,7 @@ each stage is a list of ``scrppl`` command lines, so the runner takes the functi
 
 * :class:`Stage` -- one step: command lines, inputs, outputs;
 * :func:`is_current` -- whether a stage's outputs are newer than its inputs (then it is skipped);
-* :func:`stages` -- dataset, detect, fit and simulate for one dataset folder, output folder, seed and profile;
+* :func:`stages` -- dataset, detect, fit, simulate and kway for one dataset folder, output folder, seed and profile;
 * :func:`uses_existing_dataset` -- whether the dataset folder is used as it is rather than generated;
 * :func:`run_stages` -- run the stages that are not current;
 * :func:`failed_fits` -- the hierarchical fits that failed their diagnostics (``diagnostics.json``).
@@ -15,12 +15,13 @@ each stage is a list of ``scrppl`` command lines, so the runner takes the functi
 from __future__ import annotations
 
 import importlib.util
-import json
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+from scrppl._io import read_json
 
 __all__ = ["Stage", "is_current", "stages", "uses_existing_dataset", "run_stages", "failed_fits"]
 
@@ -46,8 +47,17 @@ def is_current(stage: Stage) -> bool:
     return min(p.stat().st_mtime for p in stage.outputs) >= newest_input
 
 
-def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> list[Stage]:
-    """The pipeline, in order: dataset, detect, fit, simulate.
+def stages(
+    root: str | Path,
+    out: str | Path,
+    *,
+    seed: int,
+    profile: str,
+    preset: str = "clean",
+    errors: str = "report",
+    scheduler: str | None = None,
+) -> list[Stage]:
+    """The pipeline, in order: dataset, detect, fit, simulate, kway.
 
     Parameters
     ----------
@@ -59,6 +69,15 @@ def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> lis
     seed, profile
         Passed to every command (``--seed``, ``--profile``). In the ``quick`` profile the fit stage
         accepts failed MCMC diagnostics (its short chains are a smoke run).
+    preset
+        The imaging domain of the synthetic dataset (`scrppl.datasets.synthetic.domain`), passed to every
+        command as ``--preset`` unless it is ``"clean"``.
+    errors
+        For a dataset used as it is: ``--errors`` of the commands that read it (``"report"``: skip bad
+        files and list them in ``<out>/dataset-problems.csv``; ``"raise"``: stop at the first).
+    scheduler
+        ``--scheduler`` of the detect, fit and simulate commands: the address of a Dask scheduler (or
+        ``"local"``: each command starts its own cluster); ``None`` runs them in process.
 
     Returns
     -------
@@ -68,18 +87,33 @@ def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> lis
 
     root, out = Path(root), Path(out)
     common = ("--seed", str(seed), "--profile", profile)
+    if preset != "clean":
+        common += ("--preset", preset)
     where = ("--root", str(root))
     outdir = ("--out", str(out))
+    # the stages whose tasks can run on a Dask cluster
+    dask = ("--scheduler", scheduler) if scheduler is not None else ()
     sheet = out / "figures" / "dataset-sheet.png"
-    if uses_existing_dataset(root):
+    existing = uses_existing_dataset(root)
+    on_errors = ("--errors", errors) if existing else ()
+    if existing:
         # A Savarese tree has no index file: the folder itself stands for its contents.
         index = root / INDEX_FILE if (root / INDEX_FILE).exists() else root
         dataset = Stage(
             "dataset",
             "scrppl.cli.dataset",
             (
-                ("dataset", "info", *where, "--seed", str(seed)),
-                ("dataset", "sheet", *where, *outdir, "--seed", str(seed), "--no-validate"),
+                ("dataset", "info", *where, *on_errors, "--seed", str(seed)),
+                (
+                    "dataset",
+                    "sheet",
+                    *where,
+                    *outdir,
+                    *on_errors,
+                    "--seed",
+                    str(seed),
+                    "--no-validate",
+                ),
             ),
             (index,),
             (sheet,),
@@ -101,7 +135,7 @@ def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> lis
         Stage(
             "detect",
             "scrppl.cli.detect",
-            (("detect", *where, *outdir, *common),),
+            (("detect", *where, *outdir, *on_errors, *common, *dask),),
             (index,),
             (out / "responses.nc",),
         ),
@@ -115,6 +149,7 @@ def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> lis
                     *outdir,
                     *common,
                     *(("--accept-diagnostics",) if profile == "quick" else ()),
+                    *dask,
                 ),
             ),
             (out / "responses.nc",),
@@ -124,9 +159,26 @@ def stages(root: str | Path, out: str | Path, *, seed: int, profile: str) -> lis
         Stage(
             "simulate",
             "scrppl.cli.simulate",
-            (("simulate", *outdir, *common),),
+            (("simulate", *outdir, *common, *dask),),
             (out / "models" / "diagnostics.json",),
             (out / "trials.nc",),
+            takes_force=True,
+        ),
+        Stage(
+            "kway",
+            "scrppl.cli.kway",
+            # K-way recognition with the DPM family's target detectors (their fits come from the fit stage)
+            (
+                (
+                    "kway",
+                    *outdir,
+                    *common,
+                    *(("--accept-diagnostics",) if profile == "quick" else ()),
+                ),
+            ),
+            # it reads the fits; chained after simulate (which reruns whenever they change) to stay linear
+            (out / "trials.nc",),
+            (out / "kway-trials.nc", out / "kway-summary.json"),
             takes_force=True,
         ),
     ]
@@ -204,5 +256,5 @@ def failed_fits(path: str | Path) -> list[str]:
     path = Path(path)
     if not path.exists():
         return []
-    diag = json.loads(path.read_text())
+    diag = read_json(path, "MCMC diagnostics", remedy="rerun `scrppl fit --force` to regenerate it")
     return sorted(k for k, v in diag.items() if isinstance(v, dict) and v.get("ok") is False)

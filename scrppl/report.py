@@ -10,12 +10,11 @@ tables behind them are written beside it as ``report-*.csv`` and linked from the
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 from typing import Any
 
-from scrppl._io import atomic_path
+from scrppl._io import CorruptFileError, atomic_path, read_json
 
 __all__ = ["write_report"]
 
@@ -81,6 +80,8 @@ OTHER_CAPTIONS = (
         "calibration",
         "Reliability of p(target present | responses): naive Bayes vs instance-aware filter.",
     ),
+    ("kway-accuracy", "K-way recognition: accuracy, p(true category) and entropy against views."),
+    ("kway-confusion", "K-way recognition: confusion matrices after 1, 2 and 4 views."),
 )
 
 #: Which stage writes each input, for the line that says an input is missing.
@@ -90,6 +91,7 @@ _STAGE_OF = {
     "models/diagnostics.json": "fit",
     "models/heldout.csv": "fit",
     "simulate-summary.json": "simulate",
+    "kway-summary.json": "kway",
 }
 
 _KINDS = ("gaussian", "hierarchical")
@@ -159,9 +161,9 @@ def _load_json(out: Path, rel: str, title: str) -> tuple[Any, str]:
     if not path.exists():
         return None, _missing(title, rel)
     try:
-        return json.loads(path.read_text()), ""
-    except json.JSONDecodeError as err:
-        return None, _missing(title, rel, f"`{rel}` could not be read: {err}")
+        return read_json(path, rel), ""
+    except CorruptFileError as err:
+        return None, _missing(title, rel, f"`{rel}` could not be read: {err.reason}")
 
 
 # ----------------------------------------------------------------------------------------- sections
@@ -461,6 +463,14 @@ def _section_experiment(out: Path) -> str:
     return text
 
 
+def _section_kway(out: Path) -> str:
+    """K-way recognition (``scrppl kway``): :func:`scrppl.kway.report.kway_markdown`."""
+    from scrppl.kway.report import TITLE, kway_markdown
+
+    summ, msg = _load_json(out, "kway-summary.json", TITLE)
+    return msg or kway_markdown(summ)
+
+
 def _caption(name: str) -> str:
     return next((cap for prefix, cap in OTHER_CAPTIONS if name.startswith(prefix)), "")
 
@@ -505,7 +515,32 @@ def _section_figures(out: Path) -> str:
     return "\n".join(parts)
 
 
-def _section_dataset(dataset_root: Path | None, seed: int) -> str:
+def _section_problems(out: Path) -> str:
+    """The dataset's files that ``scrppl detect`` skipped (``dataset-problems.csv``), if any."""
+    from scrppl.datasets.problems import PROBLEMS_FILE, read_problems
+
+    path = out / PROBLEMS_FILE
+    if not path.exists():
+        return ""
+    try:
+        problems = read_problems(path)
+    except (OSError, ValueError, KeyError, UnicodeDecodeError) as err:
+        return f"\n_`{PROBLEMS_FILE}` could not be read: {err}._\n"
+    if not problems:
+        return ""
+    rows = [{"file": str(p.path), "artefact": p.artefact, "problem": p.message} for p in problems]
+    shown = 50
+    text = (
+        f"\n**{len(problems)} file(s) of the dataset could not be used** and were skipped (every valid "
+        f"image was used); the list is in `{PROBLEMS_FILE}`:\n\n"
+        + _md_table(rows[:shown], ["file", "artefact", "problem"])
+    )
+    if len(rows) > shown:
+        text += f"\n... and {len(rows) - shown} more.\n"
+    return text
+
+
+def _section_dataset(dataset_root: Path | None, seed: int, out: Path | None = None) -> str:
     if dataset_root is None:
         return ""
     from scrppl.datasets import dataset_layout, open_dataset
@@ -515,7 +550,7 @@ def _section_dataset(dataset_root: Path | None, seed: int) -> str:
         return f"## Dataset\n\n_Not available: no dataset found at `{dataset_root}`._\n"
     try:  # names only: the dataset stage has checked every file
         summary = open_dataset(
-            dataset_root, split_seed=seed, validate=False, progress=False
+            dataset_root, split_seed=seed, validate=False, progress=False, errors="report"
         ).summary()
     except (FileNotFoundError, ValueError) as err:
         return f"## Dataset\n\n_Not available: the dataset could not be loaded: {err}._\n"
@@ -536,6 +571,8 @@ def _section_dataset(dataset_root: Path | None, seed: int) -> str:
             + ", ".join(f"{k} {v}" for k, v in summary["split_counts"].items())
             + ".\n"
         )
+    if out is not None:
+        text += _section_problems(out)
     return text
 
 
@@ -561,12 +598,13 @@ def write_report(
     for stale in out.glob("report-*.csv"):  # a table whose input is gone must not linger
         stale.unlink()
     sections = [
-        _section_dataset(dataset_root, seed),
+        _section_dataset(dataset_root, seed, out),
         _section_timings(out),
         _section_detectors(out),
         _section_diagnostics(out),
         _section_heldout(out),
         _section_experiment(out),
+        _section_kway(out),
         _section_figures(out),
     ]
     csvs = sorted(out.glob("report-*.csv"))

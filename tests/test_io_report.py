@@ -56,7 +56,7 @@ def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
         root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick", strict=True
     )
     chain = stages(args)
-    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate"]
+    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate", "kway"]
     for before, after in zip(chain, chain[1:], strict=False):
         assert set(after.inputs) <= set(before.outputs), (before.name, after.name)
     for s in chain:

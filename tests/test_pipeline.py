@@ -33,3 +33,38 @@ def test_failed_fits_reads_diagnostics(tmp_path):
     diag = {"thresholds": {"rhat_max": 1.01}, "sift/car": {"ok": False}, "dpm/car": {"ok": False}}
     path.write_text(json.dumps({**diag, "dpm/shoe": {"ok": True}}))
     assert failed_fits(path) == ["dpm/car", "sift/car"]
+
+
+def test_errors_reach_every_command_that_reads_a_savarese_tree(tmp_path):
+    """``--errors`` goes to the commands that open the dataset, and each accepts it."""
+    from test_savarese import small_tree
+
+    from scrppl.cli import build_parser
+    from scrppl.pipeline import stages
+
+    root = small_tree(tmp_path / "copy")
+    parser = build_parser()
+    readers = set()
+    for errors in ("raise", "report"):
+        for stage in stages(root, tmp_path / "out", seed=2, profile="quick", errors=errors):
+            for argv in stage.argv:
+                args = parser.parse_args(list(argv))
+                if getattr(args, "errors", None) is not None:
+                    assert args.errors == errors
+                    readers.add(" ".join(argv[:2]))
+    assert readers == {"dataset info", "dataset sheet", "detect --root"}
+    # the synthetic cache has no bad files to report: its commands are unchanged
+    cache = stages(tmp_path / "cache", tmp_path / "out", seed=2, profile="quick", errors="raise")
+    assert all("--errors" not in argv for stage in cache for argv in stage.argv)
+
+
+def test_failed_fits_names_a_corrupt_diagnostics_file(tmp_path):
+    import pytest
+
+    from scrppl._io import CorruptFileError
+
+    path = tmp_path / "diagnostics.json"
+    path.write_text('{"dpm/car": {"ok": fal')
+    with pytest.raises(CorruptFileError, match="scrppl fit --force") as err:
+        failed_fits(path)
+    assert str(path) in str(err.value) and "MCMC diagnostics" in str(err.value)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from scrppl._io import CACHE_ENV
 
 PROFILES = ("quick", "book", "full")
+#: Imaging-domain presets of the synthetic dataset (`scrppl.datasets.synthetic.domain`).
+PRESETS = ("clean", "robot", "hard")
 
 
 def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
@@ -30,6 +33,14 @@ def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
         help="'full' (the default dataset), 'book' (six categories at one height and scale: what the book "
         "runs on) or 'quick' (a few categories and instances, short chains)",
     )
+    parser.add_argument(
+        "--preset",
+        choices=PRESETS,
+        default="clean",
+        help="imaging domain of the synthetic dataset: 'clean' (every split alike), 'robot' or 'hard' "
+        "(detectors train on catalogue images; the held-out splits gain a room's clutter, occlusion, "
+        "light, blur, noise and compression); picks the default --root",
+    )
     if out:
         parser.add_argument(
             "--out", type=Path, default=Path("results"), help="output folder (default: results/)"
@@ -37,28 +48,127 @@ def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
 
 
 def dataset_root(args: argparse.Namespace) -> Path:
-    """The dataset folder for these arguments: ``--root`` or ``<cache>/synthetic-<profile>-seed<seed>``."""
+    """The dataset folder for these arguments: ``--root`` or the cache folder of profile, preset and seed.
+
+    ``<cache>/synthetic-<profile>-seed<seed>`` for the clean preset (the folder name datasets had before
+    presets existed), ``<cache>/synthetic-<profile>-<preset>-seed<seed>`` for the others, so datasets of
+    different presets never share a folder.
+    """
     if args.root is not None:
         return Path(args.root)
     from scrppl._io import default_cache_dir
 
-    return default_cache_dir() / f"synthetic-{args.profile}-seed{args.seed}"
+    preset = getattr(args, "preset", "clean")
+    name = args.profile if preset == "clean" else f"{args.profile}-{preset}"
+    return default_cache_dir() / f"synthetic-{name}-seed{args.seed}"
 
 
-def open_dataset_of(args: argparse.Namespace, *, validate: bool = True, progress: bool = True):
+def add_errors_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--errors raise|report``: what to do with the bad files of a Savarese tree (default: report)."""
+    parser.add_argument(
+        "--errors",
+        choices=("raise", "report"),
+        default="report",
+        help="for a copy of the Savarese dataset: 'report' (default) skips every bad file (truncated or "
+        "corrupt image, malformed mask, misnamed file, ...), uses every valid image, prints the "
+        "problems as a table and writes them to <out>/dataset-problems.csv; 'raise' stops at the first "
+        "bad file",
+    )
+
+
+def report_problems(dataset, out: Path | None) -> None:
+    """Print the dataset's problems as a table (stderr) and write them to ``<out>/dataset-problems.csv``.
+
+    Without problems, a ``dataset-problems.csv`` left in ``out`` by an earlier run is removed, so the file
+    always describes the dataset as last read.
+    """
+    from scrppl.datasets.problems import PROBLEMS_FILE, format_problems, write_problems
+
+    path = Path(out) / PROBLEMS_FILE if out is not None else None
+    if not dataset.problems:
+        if path is not None and path.exists():
+            path.unlink()
+        return
+    n = len(dataset.problems)
+    print(
+        f"WARNING: {n} file(s) of the dataset at {dataset.root} could not be used and were skipped "
+        f"({len(dataset)} valid images loaded):",
+        file=sys.stderr,
+    )
+    print(format_problems(dataset.problems, root=dataset.root, limit=20), file=sys.stderr)
+    if path is not None:
+        write_problems(dataset.problems, path)
+        print(f"(the problems are listed in {path})", file=sys.stderr)
+
+
+def open_dataset_of(
+    args: argparse.Namespace,
+    *,
+    validate: bool = True,
+    progress: bool = True,
+    out: Path | None = None,
+):
     """The dataset these arguments name: :func:`scrppl.datasets.open_dataset` on :func:`dataset_root`.
 
     ``--root`` may be a scrppl dataset folder (the synthetic cache) or a copy of the Savarese dataset;
-    for the latter ``--seed`` is the seed of its instance split. Without ``--root``, a missing cache
-    folder is reported with the ``scrppl dataset make`` line that creates it.
+    for the latter ``--seed`` is the seed of its instance split and ``--errors`` (if the command has it,
+    :func:`add_errors_option`) says what to do with its bad files: their problems are reported by
+    :func:`report_problems`, into ``out`` if given. Without ``--root``, a missing cache folder is reported
+    with the ``scrppl dataset make`` line that creates it.
     """
     from scrppl.datasets import open_dataset
 
     root = dataset_root(args)
     if args.root is None and not root.exists():
+        preset = getattr(args, "preset", "clean")
+        which = f"--profile {args.profile}" + ("" if preset == "clean" else f" --preset {preset}")
         raise FileNotFoundError(
-            f"no dataset at {root} (the default folder for --profile {args.profile} --seed "
-            f"{args.seed}); generate it with `scrppl dataset make --profile {args.profile} --seed "
+            f"no dataset at {root} (the default folder for {which} --seed "
+            f"{args.seed}); generate it with `scrppl dataset make {which} --seed "
             f"{args.seed}` or pass --root (a scrppl dataset folder or a copy of the Savarese dataset)"
         )
-    return open_dataset(root, split_seed=args.seed, validate=validate, progress=progress)
+    dataset = open_dataset(
+        root,
+        split_seed=args.seed,
+        validate=validate,
+        progress=progress,
+        errors=getattr(args, "errors", "raise"),
+    )
+    report_problems(dataset, out)
+    return dataset
+
+
+def add_scheduler_options(
+    parser: argparse.ArgumentParser, *, workers_help: str | None = None
+) -> None:
+    """Add ``--scheduler local|tcp://host:port`` and ``--workers N`` (:func:`scrppl.parallel.executor`)."""
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="local|tcp://HOST:PORT",
+        help="run the independent tasks on a Dask cluster: 'local' starts one on this machine "
+        "(--workers processes), tcp://HOST:PORT uses a running one (its workers must see the dataset "
+        "and output folders); same numbers as without it (default: everything in this process)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help=workers_help or "worker processes of --scheduler local (default: one per core)",
+    )
+
+
+def open_executor(args: argparse.Namespace):
+    """The executor of ``--scheduler`` / ``--workers``: a context manager (:func:`scrppl.parallel.executor`).
+
+    Raises
+    ------
+    ValueError
+        For a ``--scheduler`` that is neither ``local`` nor an address, or ``--workers`` below 1.
+    """
+    from scrppl.parallel import check_scheduler, executor
+
+    check_scheduler(args.scheduler)
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    return executor(args.scheduler, workers=args.workers)

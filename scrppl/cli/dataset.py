@@ -4,7 +4,9 @@
   it refuses a ``--root`` that holds another dataset (such as a copy of the Savarese dataset).
 * ``info``  describes the dataset at ``--root``: a scrppl dataset folder (``index.csv``) or a copy of
   Savarese et al.'s 3D Object Category dataset (see :func:`scrppl.datasets.open_dataset`); for the
-  latter every image and mask is checked, and ``--seed`` is the seed of its instance split.
+  latter every image and mask is checked, and ``--seed`` is the seed of its instance split. With
+  ``--errors report`` (the default) bad files are skipped and listed as a table; ``--errors raise`` stops
+  at the first.
 * ``sheet`` draws ``<out>/figures/dataset-sheet.png`` (one instance per category from every azimuth)
   and ``<out>/figures/view-sphere.png`` (all views of one instance around its view sphere).
 
@@ -18,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common, dataset_root, open_dataset_of
+from scrppl.cli._common import add_common, add_errors_option, dataset_root, open_dataset_of
 
 __all__ = ["register", "DATASET_PROFILES"]
 
@@ -104,6 +106,7 @@ def _add_options(parser: argparse.ArgumentParser, *, out: bool, validate: bool =
             action="store_true",
             help="for a Savarese folder: check file names only, do not decode every image and mask",
         )
+        add_errors_option(parser)
 
 
 def _no_subcommand(parser: argparse.ArgumentParser):
@@ -120,7 +123,7 @@ def _make(args: argparse.Namespace) -> int:
 
     root = dataset_root(args)
     check_generation_root(root)
-    config = SyntheticConfig.for_profile(args.profile)
+    config = SyntheticConfig.for_profile(args.profile, args.preset)
     dataset = make_synthetic(
         root, config, args.seed, workers=args.workers, progress=not args.no_progress
     )
@@ -133,6 +136,10 @@ def _info(args: argparse.Namespace) -> int:
 
     dataset = open_dataset_of(args, validate=not args.no_validate, progress=not args.no_progress)
     summary = describe(dataset)
+    summary["problems"] = [
+        {"path": str(p.path), "artefact": p.artefact, "message": p.message}
+        for p in dataset.problems
+    ]
     if args.json:
         json.dump(summary, sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -142,9 +149,15 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _sheet(args: argparse.Namespace) -> int:
-    from scrppl.plotting.dataset import contact_sheet, save_figure, sheet_instances, view_sphere
+    from scrppl.plotting import save_figure
+    from scrppl.plotting.dataset import contact_sheet, sheet_instances, view_sphere
 
-    dataset = open_dataset_of(args, validate=not args.no_validate, progress=not args.no_progress)
+    dataset = open_dataset_of(
+        args,
+        validate=not args.no_validate,
+        progress=not args.no_progress,
+        out=None if args.no_validate else Path(args.out),  # names alone find only some problems
+    )
     figures = Path(args.out) / "figures"
     try:
         dataset.grid.check(0, args.elevation, args.scale)

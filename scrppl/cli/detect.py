@@ -6,6 +6,8 @@ Object Category dataset (then ``--seed`` also seeds its instance split).
 
 Writes under ``--out``:
 
+* ``dataset-problems.csv`` -- for a Savarese tree read with ``--errors report`` (the default), the files
+  skipped and why (path, artefact, message); removed when there are none;
 * ``detectors/<family>-<target>.npz`` -- trained detectors (reused when present with the same settings);
 * ``responses.nc`` -- the response table (:mod:`scrppl.responses`); an interrupted run resumes from
   ``responses.partial.nc``; a table already written by the same detectors is kept;
@@ -16,7 +18,8 @@ Writes under ``--out``:
   held-out (fit and test) instances.
 
 The work is :func:`scrppl.detectors.study.run_detection`; the figures are
-:func:`scrppl.plotting.detectors.save_detection_figures`.
+:func:`scrppl.plotting.detectors.save_detection_figures`. With ``--scheduler local|tcp://host:port`` the
+training and scoring tasks run on a Dask cluster (:mod:`scrppl.parallel`), with the same results.
 """
 
 from __future__ import annotations
@@ -24,7 +27,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scrppl.cli._common import add_common, open_dataset_of
+from scrppl.cli._common import (
+    add_common,
+    add_errors_option,
+    add_scheduler_options,
+    open_dataset_of,
+    open_executor,
+)
 
 DEFAULT_FAMILIES = "sift,bof,dpm"
 
@@ -52,13 +61,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="all",
         help="training views: all views of the training instances, or the canonical few",
     )
-    p.add_argument("--workers", type=int, default=2, help="processes used for scoring (default: 2)")
+    add_scheduler_options(
+        p,
+        workers_help="worker processes: of --scheduler local (default: one per core), or without "
+        "--scheduler the processes that score the images (default: 2)",
+    )
     p.add_argument(
         "--max-negatives",
         type=int,
         default=None,
         help="negative training images per target (default: the library's default)",
     )
+    add_errors_option(p)
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=handler)
@@ -78,19 +92,22 @@ def handler(args: argparse.Namespace) -> int:
     from scrppl.detectors.study import run_detection
     from scrppl.detectors.train import DEFAULT_MAX_NEGATIVES
 
-    dataset = open_dataset_of(args, progress=not args.quiet)
     out = Path(args.out)
-    study = run_detection(
-        dataset,
-        _split_list(args.families),
-        _split_list(args.targets),
-        out,
-        views=args.views,
-        seed=args.seed,
-        workers=args.workers,
-        max_negatives=DEFAULT_MAX_NEGATIVES if args.max_negatives is None else args.max_negatives,
-        progress=not args.quiet,
-    )
+    dataset = open_dataset_of(args, progress=not args.quiet, out=out)
+    max_negatives = DEFAULT_MAX_NEGATIVES if args.max_negatives is None else args.max_negatives
+    with open_executor(args) as ex:
+        study = run_detection(
+            dataset,
+            _split_list(args.families),
+            _split_list(args.targets),
+            out,
+            views=args.views,
+            seed=args.seed,
+            workers=2 if args.workers is None else args.workers,
+            max_negatives=max_negatives,
+            progress=not args.quiet,
+            executor=ex,
+        )
     if not args.no_figures:
         from scrppl.plotting.detectors import save_detection_figures
 

@@ -10,7 +10,9 @@ Reads ``<out>/responses.nc`` and writes under ``<out>``:
 
 The fitting, checking and scoring is :func:`scrppl.models.study.fit_study`; the figures are
 :func:`scrppl.plotting.models.save_fit_figures`. Fits whose files are newer than ``responses.nc`` are loaded instead of refitted unless ``--force``. The
-command exits with status 3 when a fit fails its diagnostics, unless ``--accept-diagnostics``.
+command exits with status 3 when a fit fails its diagnostics, unless ``--accept-diagnostics``. With
+``--scheduler local|tcp://host:port`` the fits run on a Dask cluster, one task per detector x target
+(:mod:`scrppl.parallel`), with the same draws.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import os
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common
+from scrppl.cli._common import add_common, add_scheduler_options, open_executor
 
 #: Chains for both profiles (on one host device per core, up to one per chain).
 N_CHAINS = 4
@@ -53,6 +55,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"
     )
+    add_scheduler_options(p)
     p.set_defaults(func=handler)
 
 
@@ -97,16 +100,18 @@ def handler(args: argparse.Namespace) -> int:
     out = Path(args.out)
     warmup, draws = PROFILE_DRAWS[args.profile]
     config = SamplerConfig(num_warmup=warmup, num_samples=draws, num_chains=N_CHAINS, chunk=warmup)
-    study = fit_study(
-        jax.random.key(args.seed),
-        out / "responses.nc",
-        out / "models",
-        config,
-        detectors=_names(args.detectors),
-        targets=_names(args.targets),
-        force=args.force,
-        progress=args.progress,
-    )
+    with open_executor(args) as ex:
+        study = fit_study(
+            jax.random.key(args.seed),
+            out / "responses.nc",
+            out / "models",
+            config,
+            detectors=_names(args.detectors),
+            targets=_names(args.targets),
+            force=args.force,
+            progress=args.progress,
+            executor=ex,
+        )
     if study.heldout is not None:
         frame = study.heldout
         print(

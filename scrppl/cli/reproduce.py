@@ -11,6 +11,13 @@ Stages (each is also a command of its own):
 4. ``simulate`` -- the sequential-recognition experiment (``trials.nc``);
 5. ``report``   -- ``report.md`` with every figure and the key numbers.
 
+With ``--errors report`` (the default) the bad files of a Savarese tree are skipped, printed as a table
+and listed in ``dataset-problems.csv`` (and in the report); ``--errors raise`` stops at the first.
+
+With ``--scheduler`` the detect, fit and simulate stages run their tasks on a Dask cluster
+(:mod:`scrppl.parallel`): ``local`` starts one cluster of ``--workers`` processes for the whole run,
+``tcp://host:port`` uses a running one; the outputs are those of a run in process.
+
 ``run.json`` records the profile, seed and dataset folder (:func:`scrppl.open_results` reads it).
 
 A stage whose outputs exist and are newer than its inputs is skipped (``--force`` reruns everything).
@@ -21,20 +28,53 @@ their runner are :mod:`scrppl.pipeline`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common, dataset_root
+from scrppl.cli._common import add_common, add_errors_option, add_scheduler_options, dataset_root
 from scrppl.pipeline import Stage, failed_fits, is_current, run_stages, uses_existing_dataset
 from scrppl.pipeline import stages as pipeline_stages
 
 __all__ = ["register", "Stage", "stages", "is_current", "uses_existing_dataset"]
 
 
-def stages(args: argparse.Namespace) -> list[Stage]:
-    """The pipeline for these arguments, in order (:func:`scrppl.pipeline.stages`)."""
-    return pipeline_stages(dataset_root(args), Path(args.out), seed=args.seed, profile=args.profile)
+def stages(args: argparse.Namespace, scheduler: str | None = None) -> list[Stage]:
+    """The pipeline for these arguments, in order (:func:`scrppl.pipeline.stages`).
+
+    ``scheduler`` (default: ``--scheduler``) is passed to the stages that run on a Dask cluster.
+    """
+    return pipeline_stages(
+        dataset_root(args),
+        Path(args.out),
+        seed=args.seed,
+        profile=args.profile,
+        preset=getattr(args, "preset", "clean"),
+        errors=getattr(args, "errors", "report"),
+        scheduler=scheduler or getattr(args, "scheduler", None),
+    )
+
+
+@contextlib.contextmanager
+def _stage_scheduler(args: argparse.Namespace):
+    """The scheduler address the stages use: one local cluster for the whole run, or ``--scheduler``."""
+    from scrppl.parallel import check_scheduler
+
+    scheduler = check_scheduler(getattr(args, "scheduler", None))
+    if scheduler != "local":
+        yield scheduler
+        return
+    import os
+
+    from scrppl.cli.fit import N_CHAINS, _configure_host_devices
+    from scrppl.parallel import local_cluster
+
+    # the workers keep the JAX settings of the fit stage (host devices for the chains) for every stage
+    _configure_host_devices(max(1, min(N_CHAINS, os.cpu_count() or 1)))
+    with local_cluster(args.workers) as cluster:
+        print(f"[reproduce] Dask cluster: {cluster.scheduler_address}", flush=True)
+        yield cluster.scheduler_address
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -50,7 +90,8 @@ def _run(args: argparse.Namespace) -> int:
             f"[reproduce] dataset: using the dataset at {dataset_root(args)} (not generating one)",
             flush=True,
         )
-    status, timings = run_stages(stages(args), main, force=args.force)
+    with _stage_scheduler(args) as scheduler:
+        status, timings = run_stages(stages(args, scheduler), main, force=args.force)
     if status:
         return status
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
@@ -75,6 +116,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_common(p)
+    add_errors_option(p)
+    add_scheduler_options(p)
     p.add_argument(
         "--force", action="store_true", help="rerun stages even if their outputs are current"
     )

@@ -12,6 +12,8 @@ then a large experiment (``--large-trials``, 10,000 in the full profile) with th
 
 Writes ``trials.nc`` (the paper-sized experiment), ``trials-large.nc``, ``figures/fig4-<target>.png``,
 ``figures/fig5-<target>-<method>.png``, ``figures/calibration.png`` and ``simulate-summary.json``.
+With ``--scheduler local|tcp://host:port`` the targets run on a Dask cluster, one task each
+(:mod:`scrppl.parallel`), with the same numbers.
 """
 
 from __future__ import annotations
@@ -19,33 +21,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scrppl.cli._common import add_common
+from scrppl.cli._common import add_common, add_scheduler_options, open_executor
 
 __all__ = ["register"]
 
 #: Settings per profile: trials, large trials, samples M per decision, max posterior draws used.
 PROFILE_SETTINGS = {
-    "quick": {
-        "trials": 160,
-        "large_trials": 1000,
-        "n_samples": 64,
-        "max_draws": 8,
-        "large_max_draws": 4,
-    },
-    "book": {
-        "trials": 160,
-        "large_trials": 10000,
-        "n_samples": 128,
-        "max_draws": 16,
-        "large_max_draws": 8,
-    },
-    "full": {
-        "trials": 160,
-        "large_trials": 10000,
-        "n_samples": 256,
-        "max_draws": 32,
-        "large_max_draws": 8,
-    },
+    "quick": dict(trials=160, large_trials=1000, n_samples=64, max_draws=8, large_max_draws=4),
+    "book": dict(trials=160, large_trials=10000, n_samples=128, max_draws=16, large_max_draws=8),
+    "full": dict(trials=160, large_trials=10000, n_samples=256, max_draws=32, large_max_draws=8),
 }
 #: Targets simulated when ``--targets`` is not given: :data:`scrppl.sim.study.DEFAULT_N_TARGETS`,
 #: repeated here so that building the parser does not import JAX.
@@ -109,6 +93,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--force", action="store_true", help="accepted for symmetry; outputs are rewritten"
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_scheduler_options(p)
     p.set_defaults(func=_run)
 
 
@@ -116,6 +101,7 @@ def _run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from scrppl.planning import PlannerConfig
     from scrppl.plotting.belief import save_study_figures
     from scrppl.responses import load_response_table
     from scrppl.sim.study import choose_detector, choose_targets, run_study, save_study
@@ -135,19 +121,22 @@ def _run(args: argparse.Namespace) -> int:
         table["target"].values.tolist(), requested, n_default=DEFAULT_N_TARGETS
     )
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
-    study = run_study(
-        args.seed,
-        table,
-        out / "models",
-        detector,
-        targets,
-        objective=args.objective,
-        motion_cost=float(args.motion_cost),
-        kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
-        progress=not args.quiet,
-        log=log,
-        **settings,
-    )
+    n_samples, cost = settings.pop("n_samples"), float(args.motion_cost)
+    config = PlannerConfig("sampled", args.objective, n_samples=n_samples, motion_cost=cost)
+    with open_executor(args) as ex:
+        study = run_study(
+            args.seed,
+            table,
+            out / "models",
+            detector,
+            targets,
+            config=config,
+            kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
+            progress=not args.quiet,
+            log=log,
+            executor=ex,
+            **settings,
+        )
     fig_dir = out / "figures"
     save_study_figures(study, fig_dir)
     written = save_study(study, out)
