@@ -1,5 +1,6 @@
-"""K-way recognition: filters against brute-force enumeration, the binary case, the planner's limit,
-the models read from hierarchical fits, save/load and input checks."""
+"""K-way recognition: filters against brute-force enumeration, the binary case, calibration on data drawn
+from the filters' own models, the planner's limit, the models read from hierarchical fits, save/load and
+input checks."""
 
 import json
 
@@ -548,3 +549,95 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     assert set(summary["trials"]["methods"]) == {"planning", "random", "one_vs_rest"}
     assert "## Which object is it? K-way recognition" in write_report(tmp_path).read_text()
     assert main(["kway", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# calibration on data simulated from the filter's own model
+
+
+def simulate_from_model(rng, params, n_trials, n_views, kind):
+    """Trials drawn from the generative model each filter assumes (uniform prior over ``(k, theta)``).
+
+    ``instance``: per trial a category, pose, one posterior draw and one instance effect ``u_t`` per
+    target, then responses at distinct random views. ``naive_bayes``: its model has a fresh draw and
+    instance effect per target at *every* view (views independent given the state).
+    """
+    mu, sigma, tau = params
+    n_t, n_n, n_k, n_a = mu.shape[:4]
+    k = rng.integers(0, n_k, n_trials)
+    theta = rng.integers(0, n_a, n_trials)
+    phi = np.argsort(rng.random((n_trials, n_a)), axis=1)[:, :n_views]  # distinct views
+    a = (phi - theta[:, None]) % n_a  # (R, J)
+    shape = (n_trials, 1, n_t) if kind == "instance" else (n_trials, n_views, n_t)
+    n = rng.integers(0, n_n, shape)
+    tt = np.arange(n_t)
+    sd_u = tau[tt, n, k[:, None, None]]
+    u = rng.normal(size=shape) * sd_u
+    idx = (tt, n, k[:, None, None], a[:, :, None], 0, 0)
+    f = mu[idx] + u + sigma[idx] * rng.normal(size=(n_trials, n_views, n_t))
+    return k, f, phi
+
+
+def filter_class_probabilities(model, kind, f, phi):
+    """``p(k | F_1..j)`` after every view ``j``: ``(R, J, K)``."""
+
+    def one(m, fr, pr):
+        def step(b, x):
+            b = KF.update(m, b, x[0], x[1])
+            return b, KF.class_marginal(b)
+
+        return jax.lax.scan(step, KF.init_belief(kind, m), (fr, pr))[1]
+
+    run = jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
+    return np.asarray(
+        run(model, jnp.asarray(f, jnp.float32), jnp.asarray(phi, jnp.int32)), np.float64
+    )
+
+
+@pytest.mark.parametrize("kind", ["naive_bayes", "instance"])
+def test_filter_is_calibrated_on_its_own_model(rng, kind):
+    """On data drawn from the model, the filter's posterior is the true conditional law of ``k``, so
+
+    * ``E[1{MAP correct}] = E[max_k p(k | F)]`` and ``E[p(k* | F)] = E[sum_k p(k | F)^2]`` (tower rule);
+    * within bins of ``max_k p``, MAP accuracy equals the bin's mean ``max_k p`` (reliability);
+    * the expected class entropy never rises with a further view (``H(k | F, f) <= H(k | F)`` on
+      average: information never hurts in expectation), and accuracy does not fall.
+
+    Each compared within 4 standard errors of the paired per-trial differences.
+    """
+    model, params = random_kway(rng, t=3, n=4, k=4, a=8)
+    # weaker, more overlapping signals than random_kway's, so that several views are needed
+    params = (params[0] * 0.7, params[1] * 1.2, params[2] * 1.2)
+    model = KwayModel(*(jnp.asarray(x, jnp.float32) for x in params))
+    n_r, n_j = 4000, 6
+    k, f, phi = simulate_from_model(rng, params, n_r, n_j, kind)
+    p = filter_class_probabilities(model, kind, f, phi)  # (R, J, K)
+    p_max = p.max(-1)
+    correct = (p.argmax(-1) == k[:, None]).astype(float)
+    p_true = np.take_along_axis(p, k[:, None, None], axis=-1)[..., 0]
+
+    def within(d, tol=4.0):  # mean of per-trial differences over trials ~ 0
+        se = d.std(0, ddof=1) / np.sqrt(d.shape[0])
+        return np.abs(d.mean(0)) <= tol * se + 1e-3
+
+    assert within(correct - p_max).all(), (correct.mean(0), p_max.mean(0))
+    assert within(p_true - (p**2).sum(-1)).all(), (p_true.mean(0), (p**2).sum(-1).mean(0))
+    # the test has power: accuracy moves from chance by a visible amount over the views
+    assert correct.mean(0)[-1] - correct.mean(0)[0] > 0.1
+    # reliability, pooled over views: bins of max p with enough trials
+    edges = np.linspace(1.0 / model.n_classes, 1.0, 6)
+    which = np.clip(np.digitize(p_max.ravel(), edges) - 1, 0, len(edges) - 2)
+    for b in range(len(edges) - 1):
+        sel = which == b
+        if sel.sum() < 200:
+            continue
+        d = correct.ravel()[sel] - p_max.ravel()[sel]
+        assert abs(d.mean()) <= 4 * d.std(ddof=1) / np.sqrt(sel.sum()) + 1e-3, (b, d.mean())
+    # entropy falls and accuracy does not fall, in expectation, view after view
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = -np.where(p > 0, p * np.log(p), 0.0).sum(-1)
+    dh = np.diff(h, axis=1)
+    assert (dh.mean(0) < 4 * dh.std(0, ddof=1) / np.sqrt(n_r)).all(), dh.mean(0)
+    assert (dh.mean(0) < 0).all(), dh.mean(0)
+    dc = np.diff(correct, axis=1)
+    assert (dc.mean(0) > -4 * dc.std(0, ddof=1) / np.sqrt(n_r)).all(), dc.mean(0)
