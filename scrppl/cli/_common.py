@@ -172,3 +172,17 @@ def open_executor(args: argparse.Namespace):
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
     return executor(args.scheduler, workers=args.workers)
+
+
+def profile_settings(args: argparse.Namespace, table: dict) -> dict:
+    """``table[args.profile]`` with every setting given on the command line (not ``None``) in its place."""
+    settings = dict(table[args.profile])
+    for opt in settings:
+        if getattr(args, opt, None) is not None:
+            settings[opt] = int(getattr(args, opt))
+    return settings
+
+
+def progress_log(args: argparse.Namespace):
+    """A function that prints a progress line, or does nothing with ``--quiet``."""
+    return (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))

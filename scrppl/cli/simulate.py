@@ -21,7 +21,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scrppl.cli._common import add_common, add_scheduler_options, open_executor
+from scrppl.cli._common import (
+    add_common,
+    add_scheduler_options,
+    open_executor,
+    profile_settings,
+    progress_log,
+)
 
 __all__ = ["register"]
 
@@ -108,10 +114,7 @@ def _run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     table = load_response_table(out / "responses.nc")
-    settings = dict(PROFILE_SETTINGS[args.profile])
-    for opt in settings:
-        if getattr(args, opt) is not None:
-            settings[opt] = int(getattr(args, opt))
+    settings = profile_settings(args, PROFILE_SETTINGS)
     detector = choose_detector(table["detector"].values.tolist(), args.detector)
     if args.targets in (None, "", "all"):
         requested = args.targets or None
@@ -120,7 +123,7 @@ def _run(args: argparse.Namespace) -> int:
     targets = choose_targets(
         table["target"].values.tolist(), requested, n_default=DEFAULT_N_TARGETS
     )
-    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
+    log = progress_log(args)
     n_samples, cost = settings.pop("n_samples"), float(args.motion_cost)
     config = PlannerConfig("sampled", args.objective, n_samples=n_samples, motion_cost=cost)
     with open_executor(args) as ex:
