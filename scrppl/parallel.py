@@ -248,28 +248,42 @@ class DaskExecutor(Executor):
     def as_completed(self, fn: Callable, items: Iterable, *args: Any) -> Iterator[tuple[int, Any]]:
         """``(index, fn(item, *args))`` as tasks finish on the cluster; each result is fetched at once.
 
+        The shared arguments are scattered to every worker. If the workers holding them all die before
+        every task has run (Dask then cancels the tasks that needed them), they are scattered again and
+        the unfinished tasks resubmitted, up to ``retries`` times; finished tasks are never rerun.
         Interrupting the iteration (an error, Ctrl-C) cancels the tasks not yet finished.
         """
         from distributed import as_completed
 
-        items = list(items)
-        if not items:
-            return
+        remaining = dict(enumerate(items))
         env, ref = worker_env(), _task_ref(fn)
-        # shared arguments go to every worker once (a restarted worker copies them from another one)
-        shared = [self.client.scatter([a], broadcast=True, hash=False)[0] for a in args]
-        futures = [
-            self.client.submit(_call, ref, env, item, *shared, pure=False, retries=self.retries)
-            for item in items
-        ]
-        index = {f.key: i for i, f in enumerate(futures)}
-        try:
-            for fut, result in as_completed(futures, with_results=True):
-                yield index[fut.key], result
-                fut.release()
-        finally:
-            self.client.cancel(futures)
-            del shared
+        for _ in range(self.retries + 1):
+            if not remaining:
+                return
+            # shared arguments go to every worker once (a restarted worker copies them from another one)
+            shared = [self.client.scatter([a], broadcast=True, hash=False)[0] for a in args]
+            futures = {
+                self.client.submit(
+                    _call, ref, env, item, *shared, pure=False, retries=self.retries
+                ): i
+                for i, item in remaining.items()
+            }
+            try:
+                for fut, result in as_completed(list(futures), with_results=True):
+                    if fut.status == "cancelled":  # its shared inputs were lost with their workers
+                        continue
+                    i = futures[fut]
+                    del remaining[i]
+                    yield i, result
+                    fut.release()
+            finally:
+                self.client.cancel(list(futures))
+                del shared
+        if remaining:
+            raise RuntimeError(
+                f"{len(remaining)} of the stage's tasks lost their shared inputs {self.retries + 1} times "
+                "(workers dying faster than they are replaced); rerun the command to resume"
+            )
 
 
 def local_cluster(n_workers: int | None = None, **kwargs):

@@ -158,6 +158,7 @@ def test_a_killed_worker_loses_no_finished_work(toy, trained, cluster, remote, t
     victim = toy.row("coffee", 1, 2, 1)
     det = _killer(trained, toy, tmp_path, victim)
     detectors = {"sift-kill": {"cat": det}}
+    remote.client.wait_for_workers(2, timeout=120)  # a worker restarted by an earlier test is back
     before = set(cluster.scheduler.workers)
     table = score_dataset(toy, detectors, progress=False, executor=remote)
     assert (tmp_path / "killed").exists()  # a worker died mid-stage ...
