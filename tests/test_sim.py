@@ -333,6 +333,18 @@ def test_experiment_entropy_planner_beats_random(table, model, key, tmp_path):
         last["tp_minus_tn"].values[:, 0], last["tp_minus_tn"].values[:, 1], rtol=1e-5
     )
     assert np.all(summ["class_entropy_lo"] <= summ["class_entropy"] + 1e-12)
+    # Fig. 5 drawn straight from the trials: the class-entropy panel shows the trial means
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_planner_comparison
+
+    fig = plot_planner_comparison(ds, "instance")
+    means = ds["class_entropy"].sel({"method": "instance"}).mean("trial")
+    for line, planner in zip(fig.axes[1].lines, ds["planner"].values, strict=True):
+        np.testing.assert_allclose(line.get_ydata(), means.sel(planner=planner).values, rtol=1e-6)
+    plt.close(fig)
+    with pytest.raises(ValueError, match="choose one target"):
+        plot_planner_comparison(ds.expand_dims(target=["car", "bike"]))
     cal = sim.calibration(ds)
     assert 0 <= cal["naive_bayes"]["ece"] < 0.2
     path = sim.save_trials(ds, tmp_path / "trials.nc")

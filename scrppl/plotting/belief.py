@@ -120,7 +120,12 @@ def plot_posterior_evolution(
 
 
 def plot_planner_comparison(
-    summary: xr.Dataset, method: str | None = None, title: str = ""
+    summary: xr.Dataset,
+    method: str | None = None,
+    title: str = "",
+    *,
+    target: str | None = None,
+    seed: int = 0,
 ) -> Figure:
     """Fig. 5: entropy planning against random views, with bootstrap 95% intervals.
 
@@ -130,17 +135,36 @@ def plot_planner_comparison(
     Parameters
     ----------
     summary
-        Output of :func:`scrppl.sim.summarise` (variables ``tp_minus_tn[_lo|_hi]``,
+        The trials (``run.trials()``, :func:`scrppl.sim.run_experiment`), summarised here with
+        :func:`scrppl.sim.summarise`, or that summary itself (variables ``tp_minus_tn[_lo|_hi]``,
         ``class_entropy[_lo|_hi]``, dims ``(method, planner, step)``).
     method
         Which method to plot (default: the first).
     title
         Figure title.
+    target
+        The target to plot when the trials have a ``target`` dimension (those of ``run.trials()``).
+    seed
+        Seed of the bootstrap when trials are summarised here.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    if "target" in summary.dims:
+        targets = summary["target"].values.tolist()
+        if target not in targets:
+            raise ValueError(f"choose one target with target=, one of {targets} (got {target!r})")
+        summary = summary.sel(target=target)
+    if "tp_minus_tn" not in summary.data_vars:
+        if "trial" not in summary.dims:
+            raise ValueError(
+                "expected trials (a 'trial' dimension) or their summary (a 'tp_minus_tn' variable), got "
+                f"variables {sorted(summary.data_vars)}"
+            )
+        from scrppl.sim.experiment import summarise
+
+        summary = summarise(summary, seed=seed)
     names = summary["method"].values.tolist()
     method = names[0] if method is None else method
     if method not in names:
