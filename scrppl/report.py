@@ -576,8 +576,130 @@ def _section_dataset(dataset_root: Path | None, seed: int, out: Path | None = No
     return text
 
 
+#: The default regime's criteria, stated before any experiment is run (issue: the paper's regime):
+#: held-out DPM mean average precision in this range ...
+REGIME_AP_RANGE = (0.55, 0.75)
+#: ... and single views ambiguous enough that the random-view baseline of the default method needs at
+#: least this many views on average to reach p(true) > 0.95.
+REGIME_MIN_RANDOM_VIEWS = 3.0
+#: The method whose views to confidence the criteria use (the library's default model and filter).
+REGIME_METHOD = "hierarchical+instance"
+
+
+def imaging_preset(dataset_root: Path | None) -> str | None:
+    """The imaging preset recorded in a synthetic dataset's ``synthetic.json``; ``None`` otherwise."""
+    if dataset_root is None:
+        return None
+    path = Path(dataset_root) / "synthetic.json"
+    if not path.exists():
+        return None
+    try:
+        meta = read_json(path, "synthetic dataset provenance")
+    except CorruptFileError:
+        return None
+    domain = meta.get("config", {}).get("domain", {}) if isinstance(meta, dict) else {}
+    return str(domain.get("name", "clean")) if isinstance(domain, dict) else None
+
+
+def regime_numbers(out: str | Path) -> dict[str, Any]:
+    """The regime of a run as its criteria measure it.
+
+    From ``detectors/quality.json`` and ``simulate-summary.json``: the held-out DPM mean AP, and for
+    :data:`REGIME_METHOD` in the large experiment the mean over targets of the views to
+    ``p(true) > 0.95`` for the random baseline and the entropy planner, with the per-target paired
+    difference. Missing inputs leave their entries ``None``.
+    """
+    out = Path(out)
+    res: dict[str, Any] = {"dpm_mean_ap": None, "random_views": None, "planning_views": None}
+    q = out / "detectors" / "quality.json"
+    if q.exists():
+        try:
+            res["dpm_mean_ap"] = (
+                read_json(q, "detector quality").get("mean_average_precision", {}).get("dpm")
+            )
+        except (CorruptFileError, AttributeError):
+            pass
+    sp = out / "simulate-summary.json"
+    if sp.exists():
+        try:
+            summ = read_json(sp, "simulation summary")
+        except CorruptFileError:
+            summ = {}
+        per_target = {}
+        for target, t in summ.get("targets", {}).items():
+            m = t.get("large_experiment", {}).get(REGIME_METHOD)
+            if isinstance(m, dict) and "views_to_confidence" in m:
+                per_target[target] = {
+                    "random": m["views_to_confidence"].get("random"),
+                    "planning": m["views_to_confidence"].get("sampled"),
+                    "difference_95ci": m.get("views_to_confidence_difference_95ci", {}),
+                }
+        if per_target:
+            res["targets"] = per_target
+            res["detector"] = summ.get("detector")
+            res["random_views"] = math.fsum(v["random"] for v in per_target.values()) / len(
+                per_target
+            )
+            res["planning_views"] = math.fsum(v["planning"] for v in per_target.values()) / len(
+                per_target
+            )
+    ap, views = res["dpm_mean_ap"], res["random_views"]
+    res["ap_criterion_met"] = (
+        None if ap is None else bool(REGIME_AP_RANGE[0] <= ap <= REGIME_AP_RANGE[1])
+    )
+    res["ambiguity_criterion_met"] = (
+        None if views is None else bool(views >= REGIME_MIN_RANDOM_VIEWS)
+    )
+    return res
+
+
+def _section_regime(out: Path, preset: str | None) -> str:
+    r = regime_numbers(out)
+    if r["dpm_mean_ap"] is None and r["random_views"] is None:
+        return ""
+    yes = {True: "met", False: "not met", None: "not measured"}
+    text = "## Regime\n\n"
+    if preset:
+        text += f"Imaging preset `{preset}` (`scrppl.datasets.synthetic.domain`)" + (
+            ": detectors trained on catalogue images, scored on robot images with the preset's nuisances. "
+            if preset != "clean"
+            else ": detectors trained and scored in one clean rendering domain. "
+        )
+    lo, hi = REGIME_AP_RANGE
+    text += (
+        f"Held-out DPM mean average precision {_num(r['dpm_mean_ap'], 2)} (criterion {lo}-{hi}: "
+        f"{yes[r['ap_criterion_met']]}). "
+    )
+    if r["random_views"] is not None:
+        text += (
+            f"Views to p(true) > 0.95 with `{REGIME_METHOD}` in the large experiment, mean over "
+            f"{len(r['targets'])} targets of the `{r.get('detector')}` detector: random unseen view "
+            f"{_num(r['random_views'], 2)} (criterion at least {REGIME_MIN_RANDOM_VIEWS:g}: "
+            f"{yes[r['ambiguity_criterion_met']]}), entropy planning {_num(r['planning_views'], 2)}.\n"
+        )
+        rows = [
+            {
+                "target": t,
+                "views, random": _num(v["random"], 2),
+                "views, entropy": _num(v["planning"], 2),
+                "entropy - random [95% CI]": f"{_num(v['difference_95ci'].get('mean'), 3)} "
+                f"[{_num(v['difference_95ci'].get('lo'), 3)}, {_num(v['difference_95ci'].get('hi'), 3)}]",
+            }
+            for t, v in r["targets"].items()
+        ]
+        text += "\n" + _md_table(rows, list(rows[0]))
+    else:
+        text += "\n"
+    return text
+
+
 def write_report(
-    out: str | Path, *, dataset_root: Path | None = None, profile: str = "full", seed: int = 0
+    out: str | Path,
+    *,
+    dataset_root: Path | None = None,
+    profile: str = "full",
+    seed: int = 0,
+    preset: str | None = None,
 ) -> Path:
     """Write ``<out>/report.md`` and its ``report-*.csv`` tables from the stages' outputs.
 
@@ -587,8 +709,9 @@ def write_report(
         The output folder of ``scrppl reproduce``.
     dataset_root
         The dataset the run used (its summary heads the report); ``None`` leaves that section out.
-    profile, seed
-        As given to ``scrppl reproduce``; named in the report's first lines.
+    profile, seed, preset
+        As given to ``scrppl reproduce``; named in the report's first lines (``preset``: the synthetic
+        dataset's imaging preset, ``None`` for a dataset the run did not generate).
 
     Returns
     -------
@@ -597,7 +720,10 @@ def write_report(
     out = Path(out)
     for stale in out.glob("report-*.csv"):  # a table whose input is gone must not linger
         stale.unlink()
+    if preset is None:
+        preset = imaging_preset(dataset_root)
     sections = [
+        _section_regime(out, preset),
         _section_dataset(dataset_root, seed, out),
         _section_timings(out),
         _section_detectors(out),
@@ -611,7 +737,9 @@ def write_report(
     head = (
         "# scrppl: reproduction report\n\n"
         "Active, sequential object-category recognition with viewpoint detection models, after Meger, "
-        f"Gupta & Little (ICRA 2010). Generated by `scrppl reproduce --profile {profile} --seed {seed}`; "
+        f"Gupta & Little (ICRA 2010). Generated by `scrppl reproduce --profile {profile}"
+        + (f" --preset {preset}" if preset else "")
+        + f" --seed {seed}`; "
         "every number below is read from the files beside this report and rounded to what it can carry "
         "(decimals: " + ", ".join(f"{k} {v}" for k, v in ROUNDING.items()) + ")."
     )

@@ -346,3 +346,36 @@ def test_netcdf_round_trip_and_missing_file_is_named(tmp_path):
     assert read_netcdf(tmp_path / "a.nc").equals(ds)
     with pytest.raises(FileNotFoundError, match="trials file not found: .*b.nc"):
         read_netcdf(tmp_path / "b.nc", "trials file")
+
+
+def test_report_regime_checks_the_stated_criteria(tmp_path):
+    from scrppl.report import REGIME_METHOD, regime_numbers
+
+    out = _fake_run(tmp_path)
+    summary = json.loads((out / "simulate-summary.json").read_text())
+
+    def large(random, sampled):
+        return {
+            "views_to_confidence": {"sampled": sampled, "random": random},
+            "views_to_confidence_difference_95ci": {"mean": sampled - random, "lo": -1, "hi": 0},
+        }
+
+    summary["targets"] = {
+        "car": {"large_experiment": {REGIME_METHOD: large(3.5, 2.75)}},
+        "shoe": {"large_experiment": {REGIME_METHOD: large(2.9, 2.25), "other": large(9, 9)}},
+    }
+    (out / "simulate-summary.json").write_text(json.dumps(summary))
+    r = regime_numbers(out)
+    assert r["random_views"] == pytest.approx((3.5 + 2.9) / 2)
+    assert r["planning_views"] == pytest.approx((2.75 + 2.25) / 2)
+    assert r["ambiguity_criterion_met"] is True  # 3.2 >= 3
+    assert r["dpm_mean_ap"] == pytest.approx(0.96335617)
+    assert r["ap_criterion_met"] is False  # above 0.75
+    text = write_report(out, preset="robot", profile="full").read_text()
+    regime = text.split("## Regime")[1].split("\n## ")[0]
+    assert "Imaging preset `robot`" in regime and "--preset robot" in text
+    assert "average precision 0.96 (criterion 0.55-0.75: not met)" in regime
+    assert "random unseen view 3.20 (criterion at least 3: met)" in regime
+    assert "| shoe | 2.90 | 2.25 | -0.650 [-1.000, 0.000] |" in regime
+    # a run without the stages' outputs has no regime section
+    assert "## Regime" not in write_report(tmp_path / "empty").read_text()

@@ -14,6 +14,10 @@ def test_open_results_reads_run_json(tmp_path):
     run = open_results(tmp_path)
     assert run == Results(tmp_path, "book", 3, (tmp_path / "data").resolve())
     assert "--profile book --seed 3" in run.describe()
+    write_run_info(tmp_path, profile="book", seed=3, dataset_root=tmp_path / "data", preset="hard")
+    run = open_results(tmp_path)
+    assert run.preset == "hard"
+    assert "--profile book --preset hard --seed 3" in run.describe()
 
 
 def test_open_results_uses_the_environment(tmp_path, monkeypatch):

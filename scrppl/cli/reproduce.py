@@ -84,8 +84,15 @@ def _run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    write_run_info(out, profile=args.profile, seed=args.seed, dataset_root=dataset_root(args))
-    if uses_existing_dataset(dataset_root(args)):
+    existing = uses_existing_dataset(dataset_root(args))
+    write_run_info(
+        out,
+        profile=args.profile,
+        seed=args.seed,
+        dataset_root=dataset_root(args),
+        preset=None if existing else args.preset,
+    )
+    if existing:
         print(
             f"[reproduce] dataset: using the dataset at {dataset_root(args)} (not generating one)",
             flush=True,
@@ -95,7 +102,13 @@ def _run(args: argparse.Namespace) -> int:
     if status:
         return status
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
-    path = write_report(out, dataset_root=dataset_root(args), profile=args.profile, seed=args.seed)
+    path = write_report(
+        out,
+        dataset_root=dataset_root(args),
+        profile=args.profile,
+        seed=args.seed,
+        preset=None if existing else args.preset,
+    )
     print(f"[reproduce] report: {path}")
     failed = failed_fits(out / "models" / "diagnostics.json")
     if failed:
