@@ -18,7 +18,7 @@ import importlib.util
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from scrppl._io import read_json
@@ -37,11 +37,20 @@ class Stage:
     outputs: tuple[Path, ...]
     #: whether the stage's command takes ``--force`` (detect needs none: it reuses only identical work)
     takes_force: bool = False
+    #: what the outputs must also say for the stage to count as done (the fit stage writes its
+    #: diagnostics even when a fit fails them; a rerun must not then go on as if it had passed)
+    complete: Callable[[], bool] | None = field(default=None, compare=False)
 
 
 def is_current(stage: Stage) -> bool:
-    """Whether every output of ``stage`` exists and is at least as new as every existing input."""
+    """Whether ``stage`` is done: its outputs exist, are newer than its inputs and are complete.
+
+    Every output must exist and be at least as new as every existing input, and ``stage.complete``
+    (when the stage has one) must say so.
+    """
     if not stage.outputs or not all(p.exists() for p in stage.outputs):
+        return False
+    if stage.complete is not None and not stage.complete():
         return False
     newest_input = max((p.stat().st_mtime for p in stage.inputs if p.exists()), default=0.0)
     return min(p.stat().st_mtime for p in stage.outputs) >= newest_input
@@ -155,6 +164,9 @@ def stages(
             (out / "responses.nc",),
             (out / "models" / "diagnostics.json",),
             takes_force=True,
+            complete=None
+            if profile == "quick"
+            else lambda: not failed_fits(out / "models" / "diagnostics.json"),
         ),
         Stage(
             "simulate",

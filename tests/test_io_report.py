@@ -379,3 +379,26 @@ def test_report_regime_checks_the_stated_criteria(tmp_path):
     assert "| shoe | 2.90 | 2.25 | -0.650 [-1.000, 0.000] |" in regime
     # a run without the stages' outputs has no regime section
     assert "## Regime" not in write_report(tmp_path / "empty").read_text()
+
+
+def test_a_fit_stage_whose_fits_failed_their_diagnostics_is_not_current(tmp_path):
+    args = argparse.Namespace(
+        root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="book", strict=True
+    )
+    fit = next(s for s in stages(args) if s.name == "fit")
+    (tmp_path / "out" / "models").mkdir(parents=True)
+    (tmp_path / "out" / "responses.nc").write_text("r")
+    diag = tmp_path / "out" / "models" / "diagnostics.json"
+    now = time.time()
+    for ok, current in ((False, False), (True, True)):
+        diag.write_text(json.dumps({"thresholds": {}, "dpm/car": {"ok": ok}}))
+        os.utime(tmp_path / "out" / "responses.nc", (now - 10, now - 10))
+        assert is_current(fit) is current
+    # the quick profile accepts failing diagnostics, so its stage is done either way
+    quick = next(
+        s
+        for s in stages(argparse.Namespace(**{**vars(args), "profile": "quick"}))
+        if s.name == "fit"
+    )
+    diag.write_text(json.dumps({"dpm/car": {"ok": False}}))
+    assert is_current(quick)

@@ -265,7 +265,7 @@ def test_partial_noncentring_keeps_the_prior(key):
         np.testing.assert_allclose(scaled.mean(axis=0), 0.0, atol=0.08)
 
 
-def test_a_failed_fit_is_refitted_once_at_a_higher_acceptance_target(key, monkeypatch):
+def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_longer(key, monkeypatch):
     """The retry logic of fit_hierarchical, with the sampler replaced by prior draws."""
     from numpyro.infer import Predictive
 
@@ -275,12 +275,14 @@ def test_a_failed_fit_is_refitted_once_at_a_higher_acceptance_target(key, monkey
     meta = {"detector": "dpm", "target": "c0", "transform": "identity"}
     model = make_model(True, choose_noncentered(data))
     prior = Predictive(model, num_samples=4 * 500)(key, *model_args(data))
-    calls = []
+    calls, lengths = [], []
+    n_bad = [1]
 
     def fake_run_nuts(key, model, args, config, progress=True, desc=""):
         calls.append(config.target_accept_prob)
+        lengths.append((config.num_warmup, config.num_samples))
         samples = {k: np.asarray(v).reshape((4, 500) + v.shape[1:]) for k, v in prior.items()}
-        if len(calls) == 1:  # chains stuck in different places: R-hat fails
+        if len(calls) <= n_bad[0]:  # chains stuck in different places: R-hat fails
             samples = {
                 k: v + np.arange(4.0).reshape((4, 1) + (1,) * (v.ndim - 2))
                 for k, v in samples.items()
@@ -303,3 +305,17 @@ def test_a_failed_fit_is_refitted_once_at_a_higher_acceptance_target(key, monkey
     with pytest.warns(DiagnosticsWarning):  # without a retry the failure is reported
         fit_hierarchical(key, data, meta, config, retry_accept=None, progress=False)
     assert calls == [config.target_accept_prob]
+    # a retry that fails too gets one last, longer attempt, and no more
+    for bad, n_calls in ((2, 3), (3, 3)):
+        calls.clear(), lengths.clear()
+        n_bad[0] = bad
+        tree = fit_hierarchical(key, data, meta, config, progress=False, warn=False)
+        assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
+        k = fit_module.RETRY_LONGER
+        assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
+        attempts = json.loads(tree.attrs["meta"])["attempts"]
+        assert [a["ok"] for a in attempts] == [False, False, bad == 2]
+        assert attempts[-1]["num_samples"] == 500 * k
+    calls.clear()
+    fit_hierarchical(key, data, meta, config, retry_longer=None, progress=False, warn=False)
+    assert len(calls) == 2
