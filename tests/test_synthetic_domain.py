@@ -377,3 +377,95 @@ def test_pipeline_passes_the_preset_to_every_command(tmp_path):
     assert all("--preset" not in argv for st in clean_stages for argv in st.argv)
     with pytest.raises(SystemExit):
         main(["reproduce", "--preset", "foggy"])
+
+
+# -- the difficulty knob -----------------------------------------------------------------------------
+def test_levels_one_and_two_are_the_presets_and_level_zero_has_no_nuisance():
+    from scrppl.datasets.synthetic.domain import domain_at_level
+
+    assert domain_at_level(1) == PRESETS["robot"] and Domain.at_level(1.0) == PRESETS["robot"]
+    assert domain_at_level(2) == PRESETS["hard"] and Domain.at_level(2.0) == PRESETS["hard"]
+    zero = domain_at_level(0)
+    assert zero.catalogue and zero.robot == Nuisance() and zero.robot.is_clean
+    assert zero.robot.light_kelvin is None and zero.robot.jpeg_quality is None
+    assert zero.name == "level-0" and domain_at_level(0.5).name == "level-0p5"
+    # every level trains on the catalogue images
+    assert all(domain_at_level(x).catalogue for x in np.linspace(0, 2, 9))
+
+
+def test_level_between_anchors_is_the_endpointwise_linear_mix():
+    from scrppl.datasets.synthetic.domain import domain_at_level
+
+    r, h = PRESETS["robot"].robot.to_dict(), PRESETS["hard"].robot.to_dict()
+    got = domain_at_level(1.25).robot.to_dict()
+    for name, a in r.items():
+        b = h[name]
+        if isinstance(a, list):
+            want = [0.75 * x + 0.25 * y for x, y in zip(a, b, strict=True)]
+            if name in ("distractors", "jpeg_quality"):  # integers, rounded half up
+                want = [int(np.floor(w + 0.5)) for w in want]
+            np.testing.assert_allclose(got[name], want, err_msg=name)
+        else:
+            np.testing.assert_allclose(got[name], 0.75 * a + 0.25 * b, err_msg=name)
+    # below level 1 from the neutral values: no noise, the camera's JPEG 85-95, 5500 K
+    half = domain_at_level(0.5).robot
+    assert half.noise == (1.0, 3.0) and half.jpeg_quality == (60, 88)
+    assert half.light_kelvin == (4150.0, 6750.0) and half.far_resolution == pytest.approx(0.8)
+    assert half.occlusion == pytest.approx(0.15) and half.distractors == (1, 2)  # 0.5 rounds up
+    # a range gated by a zero probability at level 0 keeps the robot preset's range below level 1
+    assert half.occlusion_fraction == PRESETS["robot"].robot.occlusion_fraction
+
+
+def test_every_nuisance_parameter_is_monotone_in_the_level():
+    from scrppl.datasets.synthetic.domain import domain_at_level
+
+    levels = np.linspace(0.0, 2.0, 81)
+    rows = [domain_at_level(x).robot.to_dict() for x in levels]
+    gated = {"distractor_size", "occlusion_fraction", "truncation_fraction"}
+    for name in rows[0]:
+        # None (level 0 only) and the gated ranges (inert at level 0) are compared above level 0
+        series = rows[1:] if name in gated or rows[0][name] is None else rows
+        values = np.array([np.atleast_1d(np.asarray(v[name], float)) for v in series])
+        for col in values.T:
+            d = np.diff(col)
+            assert (d >= -1e-12).all() or (d <= 1e-12).all(), name
+    # and harder means more of every effect
+    assert rows[-1]["noise"][1] > rows[40]["noise"][1] > rows[20]["noise"][1] > rows[0]["noise"][1]
+
+
+@pytest.mark.parametrize("level", [-0.1, 2.5, "hard", None])
+def test_invalid_level_names_itself(level):
+    from scrppl.datasets.synthetic.domain import domain_at_level
+
+    with pytest.raises(ValueError, match="difficulty level"):
+        domain_at_level(level)
+
+
+def test_splits_option_renders_the_same_images_of_those_instances_only(tmp_path):
+    cfg = SyntheticConfig(
+        categories=("mouse",), n_instances=3, grid=ViewGrid(4, (25.0,), (1.0,)), width=W,
+        height=H, domain="robot",
+    )  # fmt: skip
+    full = make_synthetic(tmp_path / "full", cfg, SEED, workers=1, progress=False)
+    part = make_synthetic(
+        tmp_path / "part", cfg, SEED, workers=1, progress=False, splits=("test", "fit")
+    )
+    assert "splits" not in full.meta and part.meta["splits"] == ["fit", "test"]
+    held = full.index[full.index["split"] != "train"].reset_index(drop=True)
+    assert len(part.index) == len(held) == 8 and set(part.index["split"]) == {"fit", "test"}
+    for col in ("category", "instance", "azimuth", "split", "image", "x0", "y0", "x1", "y1"):
+        assert part.index[col].tolist() == held[col].tolist(), col
+    for rel in held["image"]:
+        assert (tmp_path / "part" / rel).read_bytes() == (tmp_path / "full" / rel).read_bytes()
+    assert not any(
+        (tmp_path / "part" / rel).exists()
+        for rel in full.index["image"]
+        if rel not in set(held["image"])
+    )
+    # complete: loaded, not rendered again; the folder never passes for the whole dataset
+    again = make_synthetic(tmp_path / "part", cfg, SEED, workers=1, splits=["fit", "test"])
+    assert again.index.equals(part.index)
+    with pytest.raises(ValueError, match="another configuration"):
+        make_synthetic(tmp_path / "part", cfg, SEED, workers=1)
+    with pytest.raises(ValueError, match="splits"):
+        make_synthetic(tmp_path / "x", cfg, SEED, workers=1, splits=("holdout",))

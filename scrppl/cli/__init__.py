@@ -7,6 +7,7 @@ Subcommands (each in its own module, each with ``--help``):
 * ``scrppl fit``       -- viewpoint detection models (:mod:`scrppl.cli.fit`)
 * ``scrppl simulate``  -- sequential recognition trials (:mod:`scrppl.cli.simulate`)
 * ``scrppl kway``      -- which of K categories: the K-way experiment (:mod:`scrppl.cli.kway`)
+* ``scrppl sweep``     -- planning vs random across imaging difficulty and detectors (:mod:`scrppl.cli.sweep`)
 * ``scrppl reproduce`` -- every stage in order, then the report (:mod:`scrppl.cli.reproduce`)
 
 Each module exposes ``register(subparsers)``, which adds its parser and sets ``func`` to a handler
@@ -22,7 +23,7 @@ import sys
 
 __all__ = ["main", "build_parser"]
 
-_SUBCOMMANDS = ("dataset", "detect", "fit", "simulate", "kway", "reproduce")
+_SUBCOMMANDS = ("dataset", "detect", "fit", "simulate", "kway", "sweep", "reproduce")
 
 
 def build_parser() -> argparse.ArgumentParser:

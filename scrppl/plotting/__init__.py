@@ -6,7 +6,8 @@
   rank plots, instance effects, prior and posterior predictive checks;
 * :mod:`scrppl.plotting.belief` -- Fig. 4 (posterior evolution), Fig. 5 (planner comparison), calibration,
   repeated views, expected entropy per candidate view and the sampling error of eq. 5;
-* :mod:`scrppl.plotting.kway` -- K-way recognition: accuracy against views, confusion matrices.
+* :mod:`scrppl.plotting.kway` -- K-way recognition: accuracy against views, confusion matrices;
+* :mod:`scrppl.plotting.sweep` -- the difficulty sweep: views saved by planning against detector quality.
 """
 
 from scrppl.plotting._save import save_figure
@@ -42,6 +43,7 @@ from scrppl.plotting.models import (
     plot_prior_predictive,
     plot_viewpoint_functions,
 )
+from scrppl.plotting.sweep import plot_difficulty_sweep
 
 __all__ = [
     "contact_sheet",
@@ -70,4 +72,5 @@ __all__ = [
     "plot_kway_accuracy",
     "plot_kway_confusion",
     "plot_kway_confusions",
+    "plot_difficulty_sweep",
 ]

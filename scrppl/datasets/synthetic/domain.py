@@ -24,6 +24,10 @@ Presets (:data:`PRESETS`, :meth:`Domain.preset`):
 * ``"robot"`` -- catalogue training images, moderate robot nuisances;
 * ``"hard"`` -- catalogue training images, strong robot nuisances.
 
+Between them, :func:`domain_at_level` (also :meth:`Domain.at_level`) is a continuous difficulty knob:
+level 0 is catalogue training with no robot nuisance, level 1 the ``robot`` preset, level 2 the ``hard``
+preset, every parameter piecewise linear in between (see :func:`domain_at_level` for the details).
+
 Every random choice of a nuisance is drawn from its own generator,
 ``default_rng([seed, crc32(category), instance, a, e, s, 4])`` (catalogue images: ``..., 3``), so the
 streams of the original generator are untouched and a clean dataset is byte-identical to one made before
@@ -32,10 +36,11 @@ domains existed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-__all__ = ["Nuisance", "Domain", "PRESETS", "PRESET_NAMES"]
+__all__ = ["Nuisance", "Domain", "PRESETS", "PRESET_NAMES", "domain_at_level", "MAX_LEVEL"]
 
 
 def _pair(name: str, value: Any, lo: float, hi: float, *, integer: bool = False) -> tuple:
@@ -235,6 +240,11 @@ class Domain:
             )
         return PRESETS[name]
 
+    @classmethod
+    def at_level(cls, level: float) -> Domain:
+        """The domain of a difficulty level in ``[0, 2]`` (:func:`domain_at_level`)."""
+        return domain_at_level(level)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable description (inverse: :meth:`from_dict`)."""
         return {"name": self.name, "catalogue": self.catalogue, "robot": self.robot.to_dict()}
@@ -304,3 +314,85 @@ PRESETS: dict[str, Domain] = {
 }
 #: Preset names, mildest first.
 PRESET_NAMES = tuple(PRESETS)
+
+
+#: Highest difficulty level of :func:`domain_at_level` (the ``hard`` preset).
+MAX_LEVEL = 2.0
+#: Values standing in for ``None`` when interpolating: the instance's own key-light colour is centred on
+#: 5500 K (`scrppl.datasets.synthetic.styles`), the camera's JPEG quality is 85-95.
+_NEUTRAL = {"light_kelvin": (5500.0, 5500.0), "jpeg_quality": (85, 95)}
+#: Ranges that act only through a probability or count that is zero at level 0 (their "gate"); below
+#: level 1 they keep the ``robot`` preset's range, so every parameter is monotone in the level.
+_GATED = {
+    "distractor_size": "distractors",
+    "occlusion_fraction": "occlusion",
+    "truncation_fraction": "truncation",
+}
+_INTEGER = ("distractors", "jpeg_quality")
+
+
+def _level_name(level: float) -> str:
+    return "level-" + f"{level:g}".replace(".", "p")
+
+
+def domain_at_level(level: float) -> Domain:
+    """The imaging domain of a difficulty level: 0 (no nuisance), 1 (``robot``), 2 (``hard``).
+
+    * Level 0: catalogue training images and fit/test images without any robot nuisance (the default
+      :class:`Nuisance`; the held-out images are those of the ``clean`` preset).
+    * Levels 1 and 2: exactly the ``robot`` and ``hard`` presets (:data:`PRESETS`).
+    * In between: every parameter of :class:`Nuisance` linear in the level between the neighbouring
+      anchors (0 and 1, or 1 and 2); a ``(min, max)`` range endpoint-wise, integer ranges rounded to the
+      nearest integer. ``light_kelvin`` and ``jpeg_quality`` are ``None`` (the instance's light, the
+      camera's quality) exactly at level 0 and interpolated from their neutral values (5500 K; quality
+      85-95) above it. The ranges ``distractor_size``, ``occlusion_fraction`` and ``truncation_fraction``
+      act only when distractors, occlusion or truncation are drawn at all (none at level 0): below level 1
+      they keep the ``robot`` range, so every parameter moves monotonically with the level.
+
+    The train split is rendered as catalogue images at every level (``catalogue=True``), so detectors
+    trained on one level's dataset serve every level. Other levels are named ``"level-<level>"`` with
+    ``p`` for the decimal point (``"level-0p5"``).
+
+    Raises
+    ------
+    ValueError
+        If ``level`` is not a number in ``[0, MAX_LEVEL]``.
+    """
+    try:
+        x = float(level)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"difficulty level must be a number in [0, {MAX_LEVEL:g}], got {level!r}"
+        ) from None
+    if not 0.0 <= x <= MAX_LEVEL:
+        raise ValueError(f"difficulty level must lie in [0, {MAX_LEVEL:g}], got {level!r}")
+    if x == 1.0:
+        return PRESETS["robot"]
+    if x == 2.0:
+        return PRESETS["hard"]
+    if x == 0.0:
+        return Domain(_level_name(x), catalogue=True, robot=Nuisance())
+    robot, hard = PRESETS["robot"].robot, PRESETS["hard"].robot
+    if x < 1.0:
+        lo = {}
+        for f in fields(Nuisance):
+            v = getattr(Nuisance(), f.name)
+            if v is None:
+                v = _NEUTRAL[f.name]
+            if f.name in _GATED:
+                v = getattr(robot, f.name)
+            lo[f.name] = v
+        hi, t = robot.to_dict(), x
+    else:
+        lo, hi, t = robot.to_dict(), hard.to_dict(), x - 1.0
+    values: dict[str, Any] = {}
+    for f in fields(Nuisance):
+        a, b = lo[f.name], hi[f.name]
+        if isinstance(a, tuple | list):
+            pair = [(1.0 - t) * float(p) + t * float(q) for p, q in zip(a, b, strict=True)]
+            values[f.name] = (
+                tuple(int(math.floor(v + 0.5)) for v in pair) if f.name in _INTEGER else tuple(pair)
+            )
+        else:
+            values[f.name] = (1.0 - t) * float(a) + t * float(b)
+    return Domain(_level_name(x), catalogue=True, robot=Nuisance(**values))

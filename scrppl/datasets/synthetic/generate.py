@@ -451,6 +451,7 @@ def make_synthetic(
     *,
     workers: int | None = None,
     progress: bool = True,
+    splits: tuple[str, ...] | list[str] | None = None,
 ) -> MultiviewDataset:
     """Render the synthetic dataset into ``root`` (resuming), write its index and return it.
 
@@ -469,6 +470,11 @@ def make_synthetic(
         one off-screen render window for all its images.
     progress
         Show a progress bar over the images.
+    splits
+        Render only the instances of these splits (of ``"train"``, ``"fit"``, ``"test"``); the instances
+        and their splits are those of the whole dataset, so a held-out instance is the same one. The
+        folder then holds (and its index lists) only those instances, and its metadata records
+        ``splits``. ``None`` (default): every instance, and metadata as before.
 
     Returns
     -------
@@ -491,6 +497,14 @@ def make_synthetic(
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     root = Path(root)
     meta = _provenance(config, seed)
+    if splits is not None:
+        wanted = sorted({str(x) for x in splits})
+        bad = [x for x in wanted if x not in ("train", "fit", "test")]
+        if not wanted or bad:
+            raise ValueError(
+                f"splits must name some of 'train', 'fit', 'test', got {list(splits)!r}"
+            )
+        meta["splits"] = wanted
 
     existing = _existing(root, meta)
     if existing is not None:
@@ -517,8 +531,11 @@ def make_synthetic(
     views = [tuple(int(x) for x in v) for v in config.grid.all_views()]
     boxes: dict[tuple[str, int, tuple[int, int, int]], tuple[int, int, int, int]] = {}
     tasks: list[_Task] = []
+    keep = {ci for ci, sp in splits.items() if "splits" not in meta or sp in meta["splits"]}
     for c in config.categories:
         for i in range(config.n_instances):
+            if (c, i) not in keep:
+                continue
             todo = []
             for v in views:
                 img_rel, mask_rel = _relpaths(c, i, v)
@@ -546,6 +563,8 @@ def make_synthetic(
     rows = []
     for c in config.categories:
         for i in range(config.n_instances):
+            if (c, i) not in keep:
+                continue
             for v in views:
                 img_rel, mask_rel = _relpaths(c, i, v)
                 x0, y0, x1, y1 = boxes[(c, i, v)]
@@ -611,7 +630,7 @@ def _existing(root: Path, meta: dict[str, Any]) -> MultiviewDataset | None:
     except json.JSONDecodeError:
         return None
     mine = _normalised({k: saved.get(k) for k in meta})
-    if mine != meta:
+    if mine != meta or saved.get("splits") != meta.get("splits"):
         raise ValueError(
             f"{root} holds a dataset made with another configuration, seed or renderer version "
             f"(its {META_FILE} says {json.dumps(mine, sort_keys=True)}); delete that folder or "
@@ -619,7 +638,16 @@ def _existing(root: Path, meta: dict[str, Any]) -> MultiviewDataset | None:
         )
     dataset = MultiviewDataset.load(root)
     cfg = SyntheticConfig.from_dict(meta["config"])
-    if len(dataset) != cfg.n_images:
+    n_images = cfg.n_images
+    if "splits" in meta:
+        parts = assign_splits(
+            meta["seed"],
+            {c: range(cfg.n_instances) for c in cfg.categories},
+            cfg.split_proportions,
+        )
+        n_kept = sum(sp in meta["splits"] for sp in parts.values())
+        n_images = n_kept * cfg.grid.n_views
+    if len(dataset) != n_images:
         return None
     for img, mask in zip(dataset.index["image"], dataset.index["mask"], strict=True):
         if not (root / img).exists() or not (root / mask).exists():

@@ -1,0 +1,222 @@
+"""The difficulty sweep (:mod:`scrppl.sim.sweep`, ``scrppl sweep``) and its figure.
+
+Fast tests check the summary of one paired experiment against numbers computed here from the trials,
+the run configuration at a level and the keys; the slow ones fit and simulate a simulated response table
+and run the command end to end on a tiny rendered run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+import xarray as xr
+
+from scrppl.datasets.core import assign_splits
+from scrppl.datasets.synthetic import SyntheticConfig
+from scrppl.datasets.synthetic.domain import PRESETS
+from scrppl.sim import sweep as S
+from scrppl.views import ViewGrid
+
+
+def fake_experiment(rng, n_trials=300, n_steps=8) -> xr.Dataset:
+    """An experiment dataset in :func:`scrppl.sim.run_experiment`'s layout, one method, two planners."""
+    shape = (1, 2, n_trials, n_steps)
+    views = rng.integers(1, n_steps + 2, size=shape[:3])
+    return xr.Dataset(
+        {
+            "views_to_confidence": (("method", "planner", "trial"), views),
+            "p_true": (("method", "planner", "trial", "step"), rng.uniform(size=shape)),
+            "correct": (("method", "planner", "trial", "step"), rng.uniform(size=shape) < 0.7),
+        },
+        coords={
+            "method": ["hierarchical+instance"],
+            "planner": ["sampled", "random"],
+            "trial": np.arange(n_trials),
+            "step": np.arange(1, n_steps + 1),
+        },
+    )
+
+
+def test_views_saved_is_the_mean_of_the_paired_differences(rng):
+    ds = fake_experiment(rng)
+    out = S.summarise_point(ds, seed=3, n_boot=500)
+    plan = ds["views_to_confidence"].values[0, 0].astype(float)
+    rand = ds["views_to_confidence"].values[0, 1].astype(float)
+    assert out["views_saved"] == pytest.approx(np.mean(rand - plan))
+    assert out["views_to_confidence"] == pytest.approx(
+        {"sampled": plan.mean(), "random": rand.mean()}
+    )
+    assert out["reached_confidence"]["random"] == pytest.approx(np.mean(rand <= 8))
+    assert out["views_saved_lo"] < out["views_saved"] < out["views_saved_hi"]
+    # the interval is the paired one: narrower than that of two independent means when trials correlate
+    se = np.std(rand - plan, ddof=1) / np.sqrt(len(plan))
+    assert out["views_saved_hi"] - out["views_saved_lo"] == pytest.approx(2 * 1.96 * se, rel=0.2)
+    for k in (1, 2):
+        p = ds["p_true"].values[0, 0, :, k - 1].mean()
+        assert out[f"p_true_{k}"]["sampled"] == pytest.approx(p)
+        acc = ds["correct"].values[0, 1, :, k - 1].mean()
+        assert out[f"accuracy_{k}"]["random"] == pytest.approx(acc)
+    assert S.summarise_point(ds, seed=3, n_boot=500) == out  # same seed, same interval
+    with pytest.raises(ValueError, match="one method"):
+        S.summarise_point(xr.concat([ds, ds.assign_coords(method=["x"])], "method"))
+
+
+def test_level_config_keeps_the_runs_instances_and_splits_on_one_ring():
+    base = SyntheticConfig.for_profile("full", "robot")
+    cfg = S.level_config(base, 0.5)
+    assert cfg.grid == ViewGrid(8, (base.grid.elevations[0],), (base.grid.scales[0],))
+    assert cfg.domain.name == "level-0p5" and S.level_config(base, 2).domain == PRESETS["hard"]
+    same = ("categories", "n_instances", "split_proportions", "width", "height", "jitter", "fill")
+    assert all(getattr(cfg, f) == getattr(base, f) for f in same)
+    inst = {c: range(base.n_instances) for c in base.categories}
+    assert assign_splits(0, inst, cfg.split_proportions) == assign_splits(
+        0, inst, base.split_proportions
+    )
+    # the rendering folders differ by level, not by the run's preset
+    tag = S._config_tag
+    assert tag(cfg) == tag(S.level_config(dataclasses.replace(base, domain="clean"), 1.0))
+    assert S.level_label(1) == "level-1" and S.level_label(0.25) == "level-0p25"
+
+
+def test_point_keys_repeat_and_differ_by_point():
+    data = jax.random.key_data
+    k = S.point_key(0, 1.0, "dpm", "car")
+    assert np.array_equal(data(k), data(S.point_key(0, 1, "dpm", "car")))
+    others = [
+        S.point_key(1, 1.0, "dpm", "car"),
+        S.point_key(0, 2.0, "dpm", "car"),
+        S.point_key(0, 1.0, "sift", "car"),
+        S.point_key(0, 1.0, "dpm", "bicycle"),
+    ]
+    assert all(not np.array_equal(data(k), data(o)) for o in others)
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="n_trials"):
+        S.SweepSettings(n_trials=1)
+    with pytest.raises(ValueError, match="num_chains"):
+        S.SweepSettings(num_chains=0)
+
+
+def test_figure_has_both_panels(rng, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from scrppl.plotting import plot_difficulty_sweep, save_figure
+
+    levels, fams, tgts = [0.0, 1.0, 2.0], ["sift", "dpm"], ["car", "shoe"]
+    shape = (3, 2, 2)
+    saved = rng.normal(0.3, 0.2, shape)
+    ds = xr.Dataset(
+        {
+            "ap": (("level", "family", "target"), rng.uniform(0.3, 0.9, shape)),
+            "views_saved": (("level", "family", "target"), saved),
+            "views_saved_lo": (("level", "family", "target"), saved - 0.1),
+            "views_saved_hi": (("level", "family", "target"), saved + 0.1),
+            "views_to_confidence": (
+                ("level", "family", "target", "planner"),
+                rng.uniform(2, 5, (*shape, 2)),
+            ),
+        },
+        coords={"level": levels, "family": fams, "target": tgts, "planner": ["sampled", "random"]},
+    )
+    fig = plot_difficulty_sweep(ds)
+    left, right = fig.axes
+    assert len(right.get_lines()) == 4  # 2 families x 2 planners
+    np.testing.assert_allclose(
+        right.get_lines()[0].get_ydata(),
+        ds["views_to_confidence"].sel(family="sift", planner="sampled").mean("target"),
+    )
+    path = save_figure(fig, tmp_path / "sweep.png", close=True)
+    assert path.stat().st_size > 1000
+
+
+# -- fits and trials -----------------------------------------------------------------------------------
+TINY = S.SweepSettings(
+    n_trials=40, num_warmup=60, num_samples=60, num_chains=2, n_samples=8, max_draws=2, n_boot=200
+)
+
+
+@pytest.mark.slow
+def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
+    from scrppl.models.simulate import random_true_model, simulate_response_table
+    from scrppl.sim import metrics as M
+
+    grid = ViewGrid(8, (25.0,), (1.0,))
+    params = {("dpm", "c0"): random_true_model(jax.random.key(1), grid, kappa=0.0)}
+    table = simulate_response_table(
+        jax.random.key(7), params, ["c0", "c1", "c2"], 6, grid, {"fit": 4, "test": 2}
+    )
+    key = S.point_key(0, 1.0, "dpm", "c0")
+    a, ds = S.run_point(key, table, tmp_path / "a", "dpm", "c0", TINY)
+    b, _ = S.run_point(key, table, tmp_path / "b", "dpm", "c0", TINY)
+    drop = ("seconds",)
+    assert {k: v for k, v in a.items() if k not in drop} == {
+        k: v for k, v in b.items() if k not in drop
+    }
+    assert a["filter"] == "instance" and ds.sizes["trial"] == TINY.n_trials
+    plan = ds["views_to_confidence"].sel(planner="sampled").values[0].astype(float)
+    rand = ds["views_to_confidence"].sel(planner="random").values[0].astype(float)
+    assert a["views_saved"] == pytest.approx(np.mean(rand - plan))
+    # paired: both planners saw the same trials, and the first view is the same start view
+    np.testing.assert_array_equal(
+        ds["azimuth"].sel(planner="sampled").values[..., 0],
+        ds["azimuth"].sel(planner="random").values[..., 0],
+    )
+    assert a["views_to_confidence"]["sampled"] == pytest.approx(plan.mean())
+    assert 0 <= a["ap"] <= 1 and a["n_steps"] == 8
+    assert np.isfinite(a["ess_bulk_min"]) and a["divergences"] >= 0
+    assert M.CONFIDENCE == 0.95
+
+
+@pytest.mark.slow
+def test_sweep_command_end_to_end_and_resumes(tmp_path, monkeypatch):
+    from scrppl.cli import main
+    from scrppl.datasets.synthetic import make_synthetic
+    from scrppl.detectors.evaluation import detector_ap
+    from scrppl.detectors.scoring import score_dataset
+    from scrppl.detectors.train import train_detectors
+
+    monkeypatch.setenv("SCRPPL_CACHE", str(tmp_path / "cache"))
+    cfg = SyntheticConfig(
+        categories=("bicycle", "cellphone", "mouse"), n_instances=3,
+        grid=ViewGrid(8, (25.0,), (1.0,)), width=128, height=96, domain="robot",
+    )  # fmt: skip
+    data = make_synthetic(tmp_path / "data", cfg, 0, workers=1, progress=False)
+    run = tmp_path / "run"
+    dets = train_detectors(data, ["sift"], None, seed=0, out_dir=run, progress=False)
+    run_table = score_dataset(data, dets, path=run / "responses.nc", progress=False)
+    argv = [
+        "sweep", "--profile", "tiny", "--root", str(data.root), "--out", str(run), "--families",
+        "sift", "--targets", "bicycle", "--levels", "0,1", "--workers", "1", "--quiet",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    first = xr.open_dataset(run / "sweep.nc").load()
+    summary = json.loads((run / "sweep-summary.json").read_text())
+    assert dict(first.sizes) == {"level": 2, "family": 1, "target": 1, "planner": 2}
+    assert summary["points_computed"] == 2 and summary["targets"] == ["bicycle"]
+    assert set(summary["seconds"]) == {"render", "score", "fit", "simulate", "total"}
+    assert (run / "figures" / "difficulty-sweep.png").exists()
+    # the held-out instances are the run's: only fit and test images rendered, none of train
+    rendered = list((tmp_path / "cache").glob("sweep-*-level-0-seed0"))
+    assert len(rendered) == 1
+    index = json.loads((rendered[0] / "dataset.json").read_text())["meta"]["splits"]
+    assert index == ["fit", "test"]
+    # level 1 of a robot run is the run's own dataset: its responses are reused, nothing rendered
+    per_level = summary["seconds_per_level"]
+    assert per_level["level-1"]["source"] == "run" and per_level["level-1"]["images"] == 0
+    assert (
+        per_level["level-0"]["source"] == "rendered" and per_level["level-0"]["images"] == 3 * 2 * 8
+    )
+    assert not list((tmp_path / "cache").glob("sweep-*-robot-seed0"))
+    run_ap = float(detector_ap(run_table, "test").sel(detector="sift", target="bicycle"))
+    assert float(first["ap"].sel(level=1.0, family="sift", target="bicycle")) == run_ap
+    # a rerun resumes from the cached points and gives the same numbers
+    assert main(argv) == 0
+    again = json.loads((run / "sweep-summary.json").read_text())
+    assert again["points_computed"] == 0
+    xr.testing.assert_equal(xr.open_dataset(run / "sweep.nc").load(), first)
