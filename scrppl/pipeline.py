@@ -6,7 +6,7 @@ each stage is a list of ``scrppl`` command lines, so the runner takes the functi
 
 * :class:`Stage` -- one step: command lines, inputs, outputs;
 * :func:`is_current` -- whether a stage's outputs are newer than its inputs (then it is skipped);
-* :func:`stages` -- dataset, detect, fit, simulate and kway for one dataset folder, output folder, seed and profile;
+* :func:`stages` -- dataset, detect, fit, simulate, kway and sweep for one dataset folder, output folder, seed and profile;
 * :func:`uses_existing_dataset` -- whether the dataset folder is used as it is rather than generated;
 * :func:`run_stages` -- run the stages that are not current;
 * :func:`failed_fits` -- the hierarchical fits that failed their diagnostics (``diagnostics.json``).
@@ -62,11 +62,13 @@ def stages(
     *,
     seed: int,
     profile: str,
-    preset: str = "clean",
+    preset: str | None = None,
     errors: str = "report",
     scheduler: str | None = None,
 ) -> list[Stage]:
-    """The pipeline, in order: dataset, detect, fit, simulate, kway.
+    """The pipeline, in order: dataset, detect, fit, simulate, kway and the difficulty sweep.
+
+    The sweep (``scrppl sweep``) renders new images, so it runs only for a generated synthetic dataset.
 
     Parameters
     ----------
@@ -80,7 +82,7 @@ def stages(
         accepts failed MCMC diagnostics (its short chains are a smoke run).
     preset
         The imaging domain of the synthetic dataset (`scrppl.datasets.synthetic.domain`), passed to every
-        command as ``--preset`` unless it is ``"clean"``.
+        command as ``--preset``; ``None`` leaves each command the profile's default.
     errors
         For a dataset used as it is: ``--errors`` of the commands that read it (``"report"``: skip bad
         files and list them in ``<out>/dataset-problems.csv``; ``"raise"``: stop at the first).
@@ -96,7 +98,7 @@ def stages(
 
     root, out = Path(root), Path(out)
     common = ("--seed", str(seed), "--profile", profile)
-    if preset != "clean":
+    if preset is not None:
         common += ("--preset", preset)
     where = ("--root", str(root))
     outdir = ("--out", str(out))
@@ -139,7 +141,7 @@ def stages(
             (),
             (index, sheet),
         )
-    return [
+    pipeline = [
         dataset,
         Stage(
             "detect",
@@ -194,6 +196,20 @@ def stages(
             takes_force=True,
         ),
     ]
+    if not existing:  # the sweep renders new images of a synthetic dataset
+        pipeline.append(
+            Stage(
+                "sweep",
+                "scrppl.cli.sweep",
+                # views saved by planning vs random across imaging difficulty, with the run's detectors;
+                # chained after kway to stay linear (it reads the detectors and the responses)
+                (("sweep", *where, *outdir, *common),),
+                (out / "kway-trials.nc",),
+                (out / "sweep.nc", out / "sweep-summary.json"),
+                takes_force=True,
+            )
+        )
+    return pipeline
 
 
 def uses_existing_dataset(root: Path) -> bool:

@@ -56,12 +56,21 @@ def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
         root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick", strict=True
     )
     chain = stages(args)
-    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate", "kway"]
+    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate", "kway", "sweep"]
     for before, after in zip(chain, chain[1:], strict=False):
         assert set(after.inputs) <= set(before.outputs), (before.name, after.name)
     for s in chain:
         for argv in s.argv:
             assert "--seed" in argv and "3" in argv
+            # every command that names the dataset gets the profile's preset (quick: clean)
+            if "--profile" in argv:
+                assert argv[argv.index("--preset") + 1] == "clean"
+    # a dataset used as it is gets no sweep (the sweep renders new images of a synthetic dataset)
+    from scrppl.datasets.core import INDEX_FILE
+
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / INDEX_FILE).write_text("")
+    assert "sweep" not in [s.name for s in stages(args)]
 
 
 def _fake_run(out):
@@ -402,3 +411,29 @@ def test_a_fit_stage_whose_fits_failed_their_diagnostics_is_not_current(tmp_path
     )
     diag.write_text(json.dumps({"dpm/car": {"ok": False}}))
     assert is_current(quick)
+
+
+def test_report_sweep_section_has_one_row_per_point(tmp_path):
+    point = {
+        "views_to_confidence": {"sampled": 2.25, "random": 2.5},
+        "reached_confidence": {"sampled": 1.0, "random": 0.98765},
+        "views_saved": 0.25,
+        "views_saved_lo": 0.1234,
+        "views_saved_hi": 0.37,
+        "ap": 0.7123,
+        "fit_ok": True,
+    }
+    summary = {
+        "settings": {"n_trials": 10000, "num_chains": 4, "num_samples": 500},
+        "points": {
+            "level-0": {"dpm/car": point},
+            "level-1p5": {"dpm/car": {**point, "fit_ok": False}, "sift/car": point},
+        },
+    }
+    (tmp_path / "sweep-summary.json").write_text(json.dumps(summary))
+    text = write_report(tmp_path).read_text()
+    sweep = text.split("## When does looking pay off?")[1].split("\n## ")[0]
+    rows = [line for line in sweep.splitlines() if line.startswith("| ") and "level" not in line]
+    assert len(rows) == 3
+    assert "| 1.5 | dpm/car | 0.71 | 2.50 | 2.25 | 0.250 [0.123, 0.370] | 0.988 | NO |" in rows
+    assert "2 of 3 fits pass every diagnostic gate." in sweep and "10000 paired trials" in sweep
