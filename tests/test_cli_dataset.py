@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from scrppl.cli import main
+from scrppl.cli._common import DEFAULT_PRESETS
 from scrppl.datasets.core import MultiviewDataset, assign_splits, write_ascii_mask
 from scrppl.views import ViewGrid
 
@@ -259,20 +260,34 @@ def test_make_passes_profile_seed_workers_and_progress(tmp_path, capsys, monkeyp
     assert calls == [(root, ("config", "tiny"), 9, 2, False)]
     assert "72 images" in out
     monkeypatch.setenv("SCRPPL_CACHE", str(tmp_path / "cache"))
+    # the full profile's default preset is the paper's regime, in its own cache folder
+    default = DEFAULT_PRESETS["full"]
+    assert default != "clean"
     assert main(["dataset", "make"]) == 0
     assert calls[-1] == (
-        tmp_path / "cache" / "synthetic-full-seed0",
-        ("config", "full"),
+        tmp_path / "cache" / f"synthetic-full-{default}-seed0",
+        ("config", "full", default),
         0,
         None,
         True,
     )
-    # another imaging-domain preset: its own cache folder
-    assert main(["dataset", "make", "--preset", "robot"]) == 0
-    assert calls[-1][:2] == (
-        tmp_path / "cache" / "synthetic-full-robot-seed0",
-        ("config", "full", "robot"),
-    )
+    # the clean preset keeps the folder name datasets had before presets existed
+    assert main(["dataset", "make", "--preset", "clean"]) == 0
+    assert calls[-1][:2] == (tmp_path / "cache" / "synthetic-full-seed0", ("config", "full"))
+    # the smaller profiles render the clean images by default
+    assert main(["dataset", "make", "--profile", "book"]) == 0
+    assert calls[-1][:2] == (tmp_path / "cache" / "synthetic-book-seed0", ("config", "book"))
+
+
+def test_the_parser_and_the_generator_agree_on_default_presets():
+    from scrppl.datasets.synthetic.config import DEFAULT_PRESETS as generator_defaults
+    from scrppl.datasets.synthetic.config import default_preset
+
+    for profile, preset in DEFAULT_PRESETS.items():
+        assert generator_defaults[profile] == preset == default_preset(profile)
+    assert default_preset("full", "hard") == "hard"
+    with pytest.raises(ValueError, match="profile"):
+        default_preset("huge")
 
 
 # -- sheet and figures ----------------------------------------------------------------------------

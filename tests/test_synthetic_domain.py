@@ -16,7 +16,14 @@ import numpy as np
 import pytest
 
 from scrppl.datasets.synthetic import SyntheticConfig, make_synthetic, render_view
-from scrppl.datasets.synthetic.domain import PRESET_NAMES, PRESETS, Domain, Nuisance
+from scrppl.datasets.synthetic.domain import (
+    PAPER_LEVEL,
+    PRESET_NAMES,
+    PRESETS,
+    Domain,
+    Nuisance,
+    domain_at_level,
+)
 from scrppl.views import ViewGrid
 
 SEED = 3
@@ -301,7 +308,7 @@ def test_invalid_parameter_names_itself(param, value):
 
 
 def test_presets_and_round_trip():
-    assert PRESET_NAMES == ("clean", "robot", "hard")
+    assert PRESET_NAMES == ("clean", "robot", "paper", "hard")
     assert PRESETS["clean"].is_clean
     for name in PRESET_NAMES:
         cfg = SyntheticConfig.for_profile("quick", name)
@@ -313,6 +320,12 @@ def test_presets_and_round_trip():
     r, h = PRESETS["robot"].robot, PRESETS["hard"].robot
     assert h.noise[1] > r.noise[1] and h.jpeg_quality[1] < r.jpeg_quality[1]
     assert h.far_resolution < r.far_resolution and h.occlusion > r.occlusion
+    # the paper's regime is level PAPER_LEVEL of the knob, between robot and hard
+    p = PRESETS["paper"]
+    assert p.catalogue and p.robot == domain_at_level(PAPER_LEVEL).robot and 1 < PAPER_LEVEL < 2
+    assert (
+        r.noise[1] < p.robot.noise[1] < h.noise[1] and r.occlusion < p.robot.occlusion < h.occlusion
+    )
     with pytest.raises(ValueError, match="preset"):
         SyntheticConfig.for_profile("quick", "foggy")
     with pytest.raises(ValueError, match="unknown nuisance parameters"):
@@ -332,7 +345,7 @@ def test_cache_folders_of_presets_differ(tmp_path, monkeypatch):
         for p in PRESET_NAMES
     }
     assert names["clean"] == "synthetic-quick-seed1"  # the folder of datasets made before presets
-    assert len(set(names.values())) == 3
+    assert len(set(names.values())) == len(PRESET_NAMES)
 
 
 def test_dataset_records_its_domain_and_trains_on_catalogue_images_only(tmp_path):

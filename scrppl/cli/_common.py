@@ -10,7 +10,16 @@ from scrppl._io import CACHE_ENV
 
 PROFILES = ("quick", "book", "full")
 #: Imaging-domain presets of the synthetic dataset (`scrppl.datasets.synthetic.domain`).
-PRESETS = ("clean", "robot", "hard")
+PRESETS = ("clean", "robot", "paper", "hard")
+#: The preset each profile renders without ``--preset``: ``scrppl.datasets.synthetic.DEFAULT_PRESETS``,
+#: repeated here so that building the parser does not import the generator (a test checks they agree).
+DEFAULT_PRESETS = {"full": "paper", "book": "clean", "quick": "clean"}
+
+
+def preset_of(args: argparse.Namespace) -> str:
+    """The imaging preset these arguments name: ``--preset``, else the profile's default."""
+    preset = getattr(args, "preset", None)
+    return preset if preset is not None else DEFAULT_PRESETS.get(args.profile, "clean")
 
 
 def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
@@ -36,10 +45,12 @@ def add_common(parser: argparse.ArgumentParser, *, out: bool = True) -> None:
     parser.add_argument(
         "--preset",
         choices=PRESETS,
-        default="clean",
-        help="imaging domain of the synthetic dataset: 'clean' (every split alike), 'robot' or 'hard' "
+        default=None,
+        help="imaging domain of the synthetic dataset: 'clean' (every split alike), 'robot', 'paper' or "
+        "'hard' "
         "(detectors train on catalogue images; the held-out splits gain a room's clutter, occlusion, "
-        "light, blur, noise and compression); picks the default --root",
+        "light, blur, noise and compression); picks the default --root (default: the profile's, "
+        f"{', '.join(f'{k} {v}' for k, v in DEFAULT_PRESETS.items() if k in PROFILES)})",
     )
     if out:
         parser.add_argument(
@@ -58,7 +69,7 @@ def dataset_root(args: argparse.Namespace) -> Path:
         return Path(args.root)
     from scrppl._io import default_cache_dir
 
-    preset = getattr(args, "preset", "clean")
+    preset = preset_of(args)
     name = args.profile if preset == "clean" else f"{args.profile}-{preset}"
     return default_cache_dir() / f"synthetic-{name}-seed{args.seed}"
 
@@ -120,8 +131,8 @@ def open_dataset_of(
 
     root = dataset_root(args)
     if args.root is None and not root.exists():
-        preset = getattr(args, "preset", "clean")
-        which = f"--profile {args.profile}" + ("" if preset == "clean" else f" --preset {preset}")
+        preset = preset_of(args)
+        which = f"--profile {args.profile} --preset {preset}"
         raise FileNotFoundError(
             f"no dataset at {root} (the default folder for {which} --seed "
             f"{args.seed}); generate it with `scrppl dataset make {which} --seed "

@@ -20,7 +20,13 @@ import json
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common, add_errors_option, dataset_root, open_dataset_of
+from scrppl.cli._common import (
+    add_common,
+    add_errors_option,
+    dataset_root,
+    open_dataset_of,
+    preset_of,
+)
 
 __all__ = ["register", "DATASET_PROFILES"]
 
@@ -123,7 +129,7 @@ def _make(args: argparse.Namespace) -> int:
 
     root = dataset_root(args)
     check_generation_root(root)
-    config = SyntheticConfig.for_profile(args.profile, args.preset)
+    config = SyntheticConfig.for_profile(args.profile, preset_of(args))
     dataset = make_synthetic(
         root, config, args.seed, workers=args.workers, progress=not args.no_progress
     )

@@ -33,7 +33,13 @@ import json
 import sys
 from pathlib import Path
 
-from scrppl.cli._common import add_common, add_errors_option, add_scheduler_options, dataset_root
+from scrppl.cli._common import (
+    add_common,
+    add_errors_option,
+    add_scheduler_options,
+    dataset_root,
+    preset_of,
+)
 from scrppl.pipeline import Stage, failed_fits, is_current, run_stages, uses_existing_dataset
 from scrppl.pipeline import stages as pipeline_stages
 
@@ -50,7 +56,7 @@ def stages(args: argparse.Namespace, scheduler: str | None = None) -> list[Stage
         Path(args.out),
         seed=args.seed,
         profile=args.profile,
-        preset=getattr(args, "preset", "clean"),
+        preset=preset_of(args),
         errors=getattr(args, "errors", "report"),
         scheduler=scheduler or getattr(args, "scheduler", None),
     )
@@ -90,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
         profile=args.profile,
         seed=args.seed,
         dataset_root=dataset_root(args),
-        preset=None if existing else args.preset,
+        preset=None if existing else preset_of(args),
     )
     if existing:
         print(
@@ -107,7 +113,7 @@ def _run(args: argparse.Namespace) -> int:
         dataset_root=dataset_root(args),
         profile=args.profile,
         seed=args.seed,
-        preset=None if existing else args.preset,
+        preset=None if existing else preset_of(args),
     )
     print(f"[reproduce] report: {path}")
     failed = failed_fits(out / "models" / "diagnostics.json")

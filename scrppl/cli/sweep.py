@@ -31,11 +31,11 @@ SWEEP_PROFILES = ("quick", "book", "full", "tiny")
 #: Settings per profile: levels, families, trials and the sampler and planner settings of each point.
 PROFILE_SETTINGS = {
     "full": dict(
-        levels="0,1,2", families="sift,bof,dpm", trials=10000, warmup=400, draws=500, chains=4,
+        levels="0,1,1.4,2", families="sift,bof,dpm", trials=10000, warmup=400, draws=500, chains=4,
         n_samples=128, max_draws=8,
     ),
     "book": dict(
-        levels="0,1,2", families="sift,bof,dpm", trials=2000, warmup=400, draws=500, chains=4,
+        levels="0,1,1.4,2", families="sift,bof,dpm", trials=2000, warmup=400, draws=500, chains=4,
         n_samples=128, max_draws=8,
     ),
     "quick": dict(
