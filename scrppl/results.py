@@ -100,6 +100,8 @@ class Results:
                 "trials.nc": "scrppl simulate",
                 "trials-large.nc": "scrppl simulate",
                 "simulate-summary.json": "scrppl simulate",
+                "sweep.nc": "scrppl sweep",
+                "sweep-summary.json": "scrppl sweep",
             }.get(parts[0] if parts else "", "scrppl reproduce")
             raise FileNotFoundError(
                 f"{p} does not exist (it is written by `{stage} --out {self.root}`)"
@@ -184,6 +186,14 @@ class Results:
         from scrppl.sim import load_trials
 
         return load_trials(self.path("trials-large.nc" if large else "trials.nc"))
+
+    def sweep(self):
+        """The difficulty sweep (``sweep.nc``, :mod:`scrppl.sim.sweep`): dims level, family, target, planner."""
+        from scrppl._io import read_netcdf
+
+        return read_netcdf(
+            self.path("sweep.nc"), "difficulty sweep", remedy="rerun `scrppl sweep --force`"
+        )
 
     def simulate_summary(self) -> dict[str, Any]:
         """The headline numbers of the experiment (``simulate-summary.json``)."""

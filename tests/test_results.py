@@ -42,6 +42,8 @@ def test_missing_folder_and_stage_name_the_command(tmp_path):
         run.diagnostics()
     with pytest.raises(FileNotFoundError, match="scrppl simulate"):
         run.trials()
+    with pytest.raises(FileNotFoundError, match="scrppl sweep"):
+        run.sweep()
 
 
 def test_corrupt_run_json_is_named(tmp_path):
