@@ -224,7 +224,7 @@ def test_choose_view_respects_visited_and_random(rng):
     belief = KF.update(model, KF.init_belief("naive_bayes", model), jnp.zeros(2), 0)
     visited = jnp.zeros((4, 1, 1), bool).at[0].set(True).at[2].set(True)
     avail = jnp.ones((4, 1, 1), bool)
-    for planner in ("sampled", "random"):
+    for planner in KP.PLANNERS:
         cfg = PlannerConfig(planner=planner, n_samples=64)
         for i in range(5):
             view, found, scores = KP.choose_view(
@@ -242,6 +242,167 @@ def test_choose_view_respects_visited_and_random(rng):
         PlannerConfig(),
     )
     assert not bool(found)
+
+
+# ------------------------------------------------------------------------------------------------
+# the collapsed planner (moment-matched posterior update)
+
+
+def instance_belief_after(model, rng, n_views, t):
+    belief = KF.init_belief("instance", model)
+    for fj, pj in zip(*observations(rng, n_views, t, 4), strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj / 2, jnp.float32), int(pj))
+    return belief
+
+
+@pytest.mark.parametrize("kind", ["naive_bayes", "instance"])
+def test_collapsed_planner_is_the_exact_one_with_one_draw(rng, kind):
+    model, _ = random_kway(rng, t=3, n=1, k=3, a=4)
+    belief = KF.init_belief(kind, model)
+    for fj, pj in zip(*observations(rng, 2, 3, 4), strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj / 2, jnp.float32), int(pj))
+    views = jnp.asarray([[1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    visited = jnp.zeros((4, 1, 1), bool).at[0].set(True)
+    avail = jnp.ones((4, 1, 1), bool)
+    got = {
+        p: KP.expected_entropies(
+            jax.random.key(5), model, belief, views, PlannerConfig(p, "joint", n_samples=512)
+        )
+        for p in ("sampled", "collapsed")
+    }
+    np.testing.assert_allclose(got["collapsed"], got["sampled"], rtol=1e-6, atol=0)
+    for i in range(3):
+        a, b = (
+            KP.choose_view(
+                jax.random.key(i),
+                model,
+                belief,
+                jnp.asarray([0, 0, 0]),
+                visited,
+                avail,
+                PlannerConfig(p, "class", n_samples=64),
+            )
+            for p in ("sampled", "collapsed")
+        )
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_allclose(a[2], b[2], rtol=1e-6, atol=0)
+    mix = KF.predictive_mixture(model, belief, 2)
+    col = KP.collapse_mixture(mix)
+    np.testing.assert_array_equal(col.mean, mix.mean)
+    np.testing.assert_array_equal(col.var, mix.var)
+
+
+def test_collapsed_gaussian_has_the_mixture_moments(rng):
+    model, _ = random_kway(rng, t=2, n=4, k=3, a=4)
+    belief = instance_belief_after(model, rng, 3, 2)
+    mix = KF.predictive_mixture(model, belief, 1)
+    col = KP.collapse_mixture(mix)
+    w = np.exp(np.asarray(mix.log_draw, np.float64))
+    m = np.asarray(mix.mean, np.float64)
+    v = np.asarray(mix.var, np.float64)
+    assert col.mean.shape == (2, 1, 3, 4) and col.var.shape == (2, 1, 3, 4)
+    assert np.ptp(w, axis=1).max() > 0.05  # the draw weights are far from uniform here
+    for t in range(2):
+        for k in range(3):
+            for a in range(4):
+                # raw moments by enumeration: E f = sum w m, E f^2 = sum w (v + m^2)
+                ww = w[t, :, k, a] / w[t, :, k, a].sum()
+                e1 = sum(ww[n] * m[t, n, k, a] for n in range(4))
+                e2 = sum(ww[n] * (v[t, n, k, a] + m[t, n, k, a] ** 2) for n in range(4))
+                np.testing.assert_allclose(col.mean[t, 0, k, a], e1, rtol=1e-5, atol=1e-6)
+                np.testing.assert_allclose(col.var[t, 0, k, a], e2 - e1**2, rtol=1e-5)
+    # and by integrating one mixture's density on a dense grid
+    t, k, a = 1, 2, 3
+    sd = np.sqrt(v[t, :, k, a])
+    x = np.linspace((m[t, :, k, a] - 10 * sd).min(), (m[t, :, k, a] + 10 * sd).max(), 20001)
+    dens = (w[t, :, k, a, None] * stats.norm.pdf(x, m[t, :, k, a, None], sd[:, None])).sum(0)
+    mean = np.trapezoid(x * dens, x)
+    np.testing.assert_allclose(np.trapezoid(dens, x), 1.0, atol=1e-6)
+    np.testing.assert_allclose(col.mean[t, 0, k, a], mean, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(
+        col.var[t, 0, k, a], np.trapezoid((x - mean) ** 2 * dens, x), rtol=1e-4
+    )
+
+
+def brute_collapsed_expected_entropy(mix, responses, objective):
+    """E_f[H(q(. | f))] for T = 2 on a dense grid: ``q`` the posterior under the moment-matched
+    Gaussians (moments by enumeration in NumPy), ``f`` from the exact mixture or from ``q``'s own
+    predictive."""
+    log_state = np.asarray(mix.log_state, np.float64)
+    w = np.exp(np.asarray(mix.log_draw, np.float64))
+    m = np.asarray(mix.mean, np.float64)
+    v = np.asarray(mix.var, np.float64)
+    w = w / w.sum(1, keepdims=True)
+    cm = (w * m).sum(1)  # (T, K, A)
+    cv = (w * (v + m**2)).sum(1) - cm**2
+    lo = (m - 8 * np.sqrt(v)).min(axis=(1, 2, 3))
+    hi = (m + 8 * np.sqrt(v)).max(axis=(1, 2, 3))
+    grids = [np.linspace(lo[t], hi[t], 401) for t in range(2)]
+    # per target: log q(f_t | state) and log p(f_t | state) on the grid, (G, K, A)
+    log_q = [stats.norm.logpdf(grids[t][:, None, None], cm[t], np.sqrt(cv[t])) for t in range(2)]
+    log_p = [
+        logsumexp(
+            np.log(w[t])[None]
+            + stats.norm.logpdf(grids[t][:, None, None, None], m[t][None], np.sqrt(v[t])[None]),
+            axis=1,
+        )
+        for t in range(2)
+    ]
+    q_joint = log_state + log_q[0][:, None] + log_q[1][None, :]  # (G0, G1, K, A)
+    post = q_joint - logsumexp(q_joint, axis=(2, 3), keepdims=True)
+    p = np.exp(post)
+    if objective == "class":
+        p = p.sum(-1)
+    h = -(p * np.log(np.maximum(p, 1e-300))).reshape(p.shape[0], p.shape[1], -1).sum(-1)
+    src = log_q if responses == "collapsed" else log_p
+    dens = np.exp(logsumexp(log_state + src[0][:, None] + src[1][None, :], axis=(2, 3)))
+    integral = lambda z: np.trapezoid(np.trapezoid(z, grids[1], axis=1), grids[0])  # noqa: E731
+    return integral(dens * h), integral(dens)
+
+
+@pytest.mark.parametrize("responses", KP.RESPONSES)
+@pytest.mark.parametrize("objective", ["joint", "class"])
+def test_collapsed_planner_converges_to_brute_force(rng, responses, objective):
+    model, _ = random_kway(rng, t=2, n=3, k=3, a=4)
+    belief = instance_belief_after(model, rng, 2, 2)
+    mix = KF.predictive_mixture(model, belief, 2)
+    want, mass = brute_collapsed_expected_entropy(mix, responses, objective)
+    assert abs(mass - 1.0) < 1e-4  # the grid holds the whole predictive
+    m = 40_000
+    col = KP.collapse_mixture(mix)
+    f = KP.sample_responses(jax.random.key(4), mix if responses == "mixture" else col, m)
+    h = np.asarray(KP.posterior_entropy(col, f, objective))
+    est = float(KP.collapsed_expected_entropy(jax.random.key(4), mix, m, objective, responses))
+    np.testing.assert_allclose(est, h.mean(), rtol=1e-5)
+    assert abs(est - want) < 4 * h.std() / np.sqrt(m)
+    # the approximation is not the exact expected entropy (the test can tell them apart)
+    exact = float(KP.sampled_expected_entropy(jax.random.key(4), mix, m, objective))
+    assert abs(exact - est) > 4 * h.std() / np.sqrt(m)
+    if responses == "mixture" and objective == "class":  # the planner scores with this estimator
+        views = jnp.asarray([[2, 0, 0], [0, 0, 0]])
+        cfg = PlannerConfig("collapsed", objective, n_samples=m)
+        scores = KP.expected_entropies(jax.random.key(4), model, belief, views, cfg)
+        np.testing.assert_allclose(scores[0], est, rtol=1e-4)
+
+
+def test_unknown_planner_is_named(rng):
+    model, _ = random_kway(rng)
+    belief = KF.init_belief("instance", model)
+    args = (jnp.zeros(3, int), jnp.zeros((4, 1, 1), bool), jnp.ones((4, 1, 1), bool))
+    for name in ("collapse", "quadrature"):
+        with pytest.raises(ValueError, match=f"planner '{name}' is not available"):
+            KP.choose_view(jax.random.key(0), model, belief, *args, PlannerConfig(planner=name))
+        with pytest.raises(ValueError, match=f"planner '{name}' is not available"):
+            KP.expected_entropies(
+                jax.random.key(0), model, belief, jnp.zeros((1, 3), int), PlannerConfig(name)
+            )
+    with pytest.raises(ValueError, match="random planner scores no view"):
+        KP.expected_entropies(
+            jax.random.key(0), model, belief, jnp.zeros((1, 3), int), PlannerConfig("random")
+        )
+    mix = KF.predictive_mixture(model, belief, 0)
+    with pytest.raises(ValueError, match="unknown responses 'exact'"):
+        KP.collapsed_expected_entropy(jax.random.key(0), mix, 8, "joint", "exact")
 
 
 def test_input_errors(rng):
@@ -445,6 +606,20 @@ def test_experiment_on_a_separable_table(rng):
         categories=cats,
     )
     xr.testing.assert_identical(ds, again)
+    # the default planner is recorded; the exact one is right here too
+    assert json.loads(ds.attrs["planner_config"])["planner"] == "collapsed"
+    exact = run_kway_experiment(
+        jax.random.key(1),
+        model,
+        trials,
+        config=PlannerConfig(n_samples=32),
+        planner="sampled",
+        n_steps=3,
+    )
+    assert json.loads(exact.attrs["planner_config"])["planner"] == "sampled"
+    assert exact["correct"].values.all()
+    with pytest.raises(ValueError, match="unknown planner 'random'"):
+        run_kway_experiment(jax.random.key(1), model, trials, planner="random")
     # bad inputs are named before anything runs
     with pytest.raises(ValueError, match="detector 'e'"):
         make_kway_trials(jax.random.key(0), table, "e", 12)

@@ -3,8 +3,9 @@
 "Which of the K categories is this object?" -- beyond the paper's one-category question. Reads
 ``<out>/responses.nc`` and the hierarchical fits under ``<out>/models/`` (fitting the family's missing
 ones), reads each target detector's fit K-way (:mod:`scrppl.kway.models`), and runs held-out trials of
-all K categories: the K-way filter with entropy planning, with random views, and K one-vs-rest binary
-filters (:mod:`scrppl.kway.experiment`), then a large experiment.
+all K categories: the K-way filter with entropy planning (the collapsed planner,
+:data:`scrppl.kway.experiment.DEFAULT_PLANNER`), with random views, and K one-vs-rest binary filters
+(:mod:`scrppl.kway.experiment`), then a large experiment.
 
 Writes ``kway/kway-<detector>.nc``, ``kway-trials.nc``, ``kway-trials-large.nc``, ``kway-summary.json``
 and ``figures/kway-accuracy.png``, ``figures/kway-confusion.png``.
@@ -24,7 +25,9 @@ __all__ = ["register", "PROFILE_SETTINGS"]
 #: experiments (160 and 3 x 160 trials, the same draws) compile it once. Eight draws per target, not two:
 #: the K-way decisions that go wrong are made in the tails of the posterior predictive (a held-out instance
 #: unlike every fitted one, see :mod:`scrppl.kway.models`), which two draws represent poorly enough that
-#: accuracy fell with further views on the book table; eight cost about twice as much per decision.
+#: accuracy fell with further views on the book table. The filters keep all eight; the experiment's
+#: collapsed planner (:data:`scrppl.kway.experiment.DEFAULT_PLANNER`) moment-matches them per target and
+#: state, so a decision costs little more than with one draw (``benchmarks/results/kway.json``).
 PROFILE_SETTINGS = {
     "quick": {
         "trials": 160,
@@ -91,6 +94,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="entropy the planner minimises: class H(k) (default), joint H(k, theta), pose",
     )
     p.add_argument(
+        "--planner",
+        choices=("collapsed", "sampled"),
+        default="collapsed",
+        help="entropy planner: collapsed (moment-matched update, the default) or sampled (exact mixture)",
+    )
+    p.add_argument(
         "--accept-diagnostics",
         action="store_true",
         help="use fits that failed their MCMC diagnostics (the quick profile's short chains)",
@@ -128,6 +137,7 @@ def _run(args: argparse.Namespace) -> int:
         detector,
         filter=args.filter,
         objective=args.objective,
+        planner=args.planner,
         accept_diagnostics=args.accept_diagnostics,
         sampler=sampler,
         progress=not args.quiet,

@@ -7,7 +7,8 @@ detectors of one family, and the robot plans where to look to tell the categorie
 * :mod:`scrppl.kway.models` -- each target detector's response given the true category, read K-way from
   the hierarchical fits (:class:`KwayModel`, a stack of ``ResponseModel`` with ``O = K``);
 * :mod:`scrppl.kway.filter` -- the exact filters over ``(k, theta)``: naive Bayes and instance-aware;
-* :mod:`scrppl.kway.planning` -- sampled expected entropy of a vector observation, random baseline;
+* :mod:`scrppl.kway.planning` -- sampled expected entropy of a vector observation, exact or with the
+  collapsed (moment-matched) posterior update, random baseline;
 * :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
   binary filters, accuracy, confusion matrices.
 """
@@ -38,7 +39,13 @@ from scrppl.kway.models import (
     stack_models,
     target_model,
 )
-from scrppl.kway.planning import choose_view, expected_entropies, sampled_expected_entropy
+from scrppl.kway.planning import (
+    choose_view,
+    collapse_mixture,
+    collapsed_expected_entropy,
+    expected_entropies,
+    sampled_expected_entropy,
+)
 
 __all__ = [
     "KwayModel",
@@ -66,4 +73,6 @@ __all__ = [
     "choose_view",
     "expected_entropies",
     "sampled_expected_entropy",
+    "collapse_mixture",
+    "collapsed_expected_entropy",
 ]

@@ -73,6 +73,13 @@ def _recall(summary: dict, e: dict) -> str:
     )
 
 
+def _planner_name(planner: str | None) -> str:
+    return {
+        "collapsed": "collapsed (moment-matched update)",
+        "sampled": "sampled (exact mixture update)",
+    }.get(planner or "", planner or "sampled")
+
+
 def kway_markdown(summary: dict) -> str:
     """The report section for a ``kway-summary.json`` (:func:`scrppl.kway.study.summary_dict`)."""
     cfg = summary.get("planner_config", {})
@@ -80,8 +87,8 @@ def kway_markdown(summary: dict) -> str:
         f"## {TITLE}\n\n"
         f"Held-out instances of all {len(summary['categories'])} categories ({', '.join(summary['categories'])}), "
         f"hidden pose, random start; at every view the {summary['detector']} detectors of every category "
-        f"respond. Filter: {summary.get('filter')}; planner: sampled expected {cfg.get('objective', '?')} "
-        f"entropy, M = {cfg.get('n_samples', '?')}.\n\n"
+        f"respond. Filter: {summary.get('filter')}; planner: {_planner_name(cfg.get('planner'))} expected "
+        f"{cfg.get('objective', '?')} entropy, M = {cfg.get('n_samples', '?')}.\n\n"
     )
     if summary.get("diagnostics_failed"):
         text += f"_Fits used despite failed MCMC diagnostics: {', '.join(summary['diagnostics_failed'])}._\n\n"

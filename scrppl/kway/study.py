@@ -20,6 +20,7 @@ import xarray as xr
 from scrppl._io import atomic_path, read_json, read_netcdf, write_netcdf
 from scrppl.kway.experiment import (
     CONFUSION_STEPS,
+    DEFAULT_PLANNER,
     compare_kway,
     confusion_matrices,
     make_kway_trials,
@@ -104,6 +105,7 @@ def run_kway_study(
     max_draws: int = 8,
     large_max_draws: int = 4,
     objective: str = "class",
+    planner: str = DEFAULT_PLANNER,
     accept_diagnostics: bool = False,
     sampler=None,
     progress: bool = True,
@@ -132,6 +134,9 @@ def run_kway_study(
         Posterior draws per target kept for filtering and planning in each experiment.
     objective
         Entropy the planner minimises (``"class"``: ``H(k)``; ``"joint"``: ``H(k, theta)``).
+    planner
+        The entropy planner (:data:`scrppl.kway.experiment.ENTROPY_PLANNERS`): ``"collapsed"`` (the
+        default, moment-matched update) or ``"sampled"`` (the exact mixture update).
     accept_diagnostics
         Use fits that failed their MCMC diagnostics (otherwise ``ValueError``).
     sampler
@@ -179,6 +184,7 @@ def run_kway_study(
                 binary=binary,
                 filter=filter,
                 config=config,
+                planner=planner,
                 categories=categories,
                 keep_probabilities=k == 0,
                 progress=progress,
