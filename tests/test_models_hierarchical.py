@@ -265,7 +265,9 @@ def test_partial_noncentring_keeps_the_prior(key):
         np.testing.assert_allclose(scaled.mean(axis=0), 0.0, atol=0.08)
 
 
-def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_longer(key, monkeypatch):
+def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_then_longer(
+    key, monkeypatch
+):
     """The retry logic of fit_hierarchical, with the sampler replaced by prior draws."""
     from numpyro.infer import Predictive
 
@@ -305,17 +307,36 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_longer(key,
     with pytest.warns(DiagnosticsWarning):  # without a retry the failure is reported
         fit_hierarchical(key, data, meta, config, retry_accept=None, progress=False)
     assert calls == [config.target_accept_prob]
-    # a retry that fails too gets one last, longer attempt, and no more
-    for bad, n_calls in ((2, 3), (3, 3)):
+    # a retry that fails too gets every coefficient non-centred, then longer chains, and no more
+    k = fit_module.RETRY_LONGER
+    centred = fit_module.DEFAULT_NONCENTERED  # the azimuth coefficients centred
+    chosen = sorted(centred)
+    for bad, n_calls in ((2, 3), (3, 4), (4, 4)):
         calls.clear(), lengths.clear()
         n_bad[0] = bad
-        tree = fit_hierarchical(key, data, meta, config, progress=False, warn=False)
+        tree = fit_hierarchical(
+            key, data, meta, config, noncentered=centred, progress=False, warn=False
+        )
         assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
-        k = fit_module.RETRY_LONGER
-        assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
+        assert lengths == [(10, 500)] * 3 + [(10 * k, 500 * k)] * (n_calls - 3)
         attempts = json.loads(tree.attrs["meta"])["attempts"]
-        assert [a["ok"] for a in attempts] == [False, False, bad == 2]
-        assert attempts[-1]["num_samples"] == 500 * k
+        assert [a["ok"] for a in attempts] == [False] * (n_calls - 1) + [n_calls > bad]
+        assert [sorted(a["noncentered"]) for a in attempts] == [chosen] * 2 + [
+            sorted(fit_module.RETRY_NONCENTERED)
+        ] * (n_calls - 2)
+        # the saved parameterisation is that of the attempt returned
+        assert sorted(json.loads(tree.attrs["meta"])["noncentered"]) == sorted(
+            fit_module.RETRY_NONCENTERED
+        )
     calls.clear()
-    fit_hierarchical(key, data, meta, config, retry_longer=None, progress=False, warn=False)
-    assert len(calls) == 2
+    fit_hierarchical(
+        key, data, meta, config, noncentered=centred, retry_longer=None, progress=False, warn=False
+    )
+    assert len(calls) == 3
+    # a fit already fully non-centred goes straight from the 0.99 retry to longer chains
+    calls.clear(), lengths.clear()
+    n_bad[0] = 3
+    thin = choose_noncentered(data)
+    assert sorted(thin) == sorted(fit_module.RETRY_NONCENTERED)
+    fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
+    assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
