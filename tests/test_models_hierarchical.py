@@ -108,7 +108,12 @@ def test_parameter_recovery():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # short chains: diagnostics are checked below instead
             tree = fit_hierarchical(
-                jax.random.key(seed), data, meta, RECOVERY_SAMPLER, progress=False
+                jax.random.key(seed),
+                data,
+                meta,
+                RECOVERY_SAMPLER,
+                retry_longer=None,
+                progress=False,
             )
         post = tree["posterior"].to_dataset()
         assert int(tree["sample_stats"]["diverging"].values.sum()) <= 4

@@ -132,7 +132,8 @@ def open_dataset_of(
     root = dataset_root(args)
     if args.root is None and not root.exists():
         preset = preset_of(args)
-        which = f"--profile {args.profile} --preset {preset}"
+        default = DEFAULT_PRESETS.get(args.profile, "clean")
+        which = f"--profile {args.profile}" + ("" if preset == default else f" --preset {preset}")
         raise FileNotFoundError(
             f"no dataset at {root} (the default folder for {which} --seed "
             f"{args.seed}); generate it with `scrppl dataset make {which} --seed "
