@@ -57,6 +57,7 @@ __all__ = [
     "executor",
     "local_cluster",
     "worker_env",
+    "single_threaded_children",
     "check_scheduler",
 ]
 
@@ -75,6 +76,29 @@ JAX_ENV = (
 
 #: Single-threaded numerical libraries in every worker (one worker per core).
 _THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def single_threaded_children() -> Iterator[None]:
+    """While open, processes started from here run BLAS, OpenMP and XLA single-threaded (one per core).
+
+    Sets :data:`_THREAD_ENV` and turns off XLA's multi-threaded Eigen in ``os.environ`` (which spawned
+    children inherit) and restores the previous values on leaving.
+    """
+    names = (*_THREAD_ENV, "XLA_FLAGS")
+    saved = {k: os.environ.get(k) for k in names}
+    os.environ.update(_THREAD_ENV)
+    os.environ["XLA_FLAGS"] = (
+        (saved["XLA_FLAGS"] or "") + " --xla_cpu_multi_thread_eigen=false"
+    ).strip()
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def worker_env() -> dict[str, str]:

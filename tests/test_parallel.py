@@ -126,6 +126,28 @@ def test_training_and_scoring_on_a_cluster_write_the_same_bytes(toy, trained, re
     assert (tmp_path / "here.nc").read_bytes() == (tmp_path / "there.nc").read_bytes()
 
 
+def test_training_in_a_pool_of_processes_gives_the_same_detectors(toy, trained, tmp_path):
+    dets = train_detectors(toy, FAMILIES, None, seed=3, out_dir=tmp_path, progress=False, workers=2)
+    assert list(dets) == FAMILIES and all(list(d) == toy.categories for d in dets.values())
+    saved = {}
+    for fam in FAMILIES:
+        for t in toy.categories:
+            assert dets[fam][t].fingerprint() == trained[fam][t].fingerprint()
+            saved[f"{fam}-{t}"] = (tmp_path / "detectors" / f"{fam}-{t}.npz").stat().st_mtime_ns
+    # every detector and its settings were saved: a rerun loads them all instead of training
+    again = train_detectors(
+        toy, FAMILIES, None, seed=3, out_dir=tmp_path, progress=False, workers=2
+    )
+    for fam in FAMILIES:
+        for t in toy.categories:
+            assert again[fam][t].fingerprint() == trained[fam][t].fingerprint()
+            path = tmp_path / "detectors" / f"{fam}-{t}.npz"
+            assert path.stat().st_mtime_ns == saved[f"{fam}-{t}"]
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="workers must be a positive integer"):
+            train_detectors(toy, FAMILIES, None, seed=3, progress=False, workers=bad)
+
+
 class _KillsItsWorker(SiftMatcher):
     """SIFT that logs every image it prepares and kills its worker process on one image, once."""
 

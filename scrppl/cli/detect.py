@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_scheduler_options(
         p,
         workers_help="worker processes: of --scheduler local (default: one per core), or without "
-        "--scheduler the processes that score the images (default: 2)",
+        "--scheduler the processes that train the detectors and score the images (default: 2)",
     )
     p.add_argument(
         "--max-negatives",

@@ -27,7 +27,6 @@ Views an instance lacks stay NaN; a ``(detector, target)`` pair absent from ``de
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
@@ -178,28 +177,20 @@ def _run_parallel(
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "XLA_FLAGS")
-    saved = {k: os.environ.get(k) for k in names}
-    os.environ.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    os.environ["XLA_FLAGS"] = (
-        (saved["XLA_FLAGS"] or "") + " --xla_cpu_multi_thread_eigen=false"
-    ).strip()
-    try:
-        with ProcessPoolExecutor(
+    from scrppl.parallel import single_threaded_children
+
+    with (
+        single_threaded_children(),
+        ProcessPoolExecutor(
             max_workers=workers,
             mp_context=mp.get_context("spawn"),
             initializer=_worker_init,
             initargs=(dataset, detectors, shape),
-        ) as pool:
-            futures = [pool.submit(_worker_run, c) for c in todo]
-            for fut in as_completed(futures):
-                yield fut.result()
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        ) as pool,
+    ):
+        futures = [pool.submit(_worker_run, c) for c in todo]
+        for fut in as_completed(futures):
+            yield fut.result()
 
 
 def _group_task(

@@ -114,7 +114,7 @@ def run_detection(
     seed
         Seed of the training sets.
     workers
-        Processes used for scoring in process.
+        Processes training the detectors and scoring the images without a cluster (``1``: this one).
     max_negatives
         Negative training images per target.
     progress
@@ -141,6 +141,7 @@ def run_detection(
         progress=progress,
         max_negatives=max_negatives,
         executor=executor,
+        workers=workers,
     )
     t1 = time.perf_counter()
     table = score_dataset(

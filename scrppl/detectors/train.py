@@ -6,9 +6,11 @@ instead of retrained, so an interrupted run resumes where it stopped. The settin
 split, number of negatives, hyperparameters) are recorded in ``<out_dir>/detectors/training.json``;
 a saved detector whose settings differ is retrained.
 
-With a Dask ``executor`` (:func:`scrppl.parallel.executor`) every family x target to train is one task on
-the cluster; each detector is saved here as its task finishes, so a run that stops resumes from the
-detectors already saved. Training depends only on the seed and the data, so the detectors are the same.
+With ``workers > 1`` the detectors are trained in that many spawned processes on this machine (each
+single-threaded), and with a Dask ``executor`` (:func:`scrppl.parallel.executor`) every family x target to
+train is one task on the cluster; either way each detector is saved here as its task finishes, so a run
+that stops resumes from the detectors already saved. Training depends only on the seed and the data, so
+the detectors are the same wherever they are trained.
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ def train_detectors(
     max_negatives: int | None = DEFAULT_MAX_NEGATIVES,
     hyperparameters: Mapping[str, Mapping[str, Any]] | None = None,
     executor: Executor | None = None,
+    workers: int = 1,
 ) -> dict[str, dict[str, Detector]]:
     """Train one detector per family and target on the ``split`` instances, saving each.
 
@@ -92,6 +95,9 @@ def train_detectors(
     executor
         A Dask executor (:func:`scrppl.parallel.executor`) to train on a cluster, one task per family x
         target; ``None`` or the in-process executor trains here.
+    workers
+        Without a cluster: processes training the detectors (``1`` trains in this process). The
+        detectors are the same for any number.
 
     Returns
     -------
@@ -105,6 +111,8 @@ def train_detectors(
     """
     from tqdm.auto import tqdm
 
+    if int(workers) != workers or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     hyperparameters = dict(hyperparameters or {})
     classes = {fam: detector_class(fam) for fam in families}
     targets = list(dataset.categories if targets is None else targets)
@@ -120,8 +128,9 @@ def train_detectors(
             recorded = {}
     out: dict[str, dict[str, Detector]] = {fam: {} for fam in families}
     bar = tqdm(total=len(families) * len(targets), desc="training", disable=not progress)
-    deferred: list[tuple[str, str]] = []  # (family, target) trained on the cluster
+    deferred: list[tuple[str, str]] = []  # (family, target) trained on the cluster or in the pool
     on_cluster = executor is not None and executor.distributed
+    in_pool = not on_cluster and workers > 1
     try:
         for target in targets:
             cache: dict[bool, tuple[list, list]] = {}
@@ -140,7 +149,7 @@ def train_detectors(
                         out[fam][target] = det
                         bar.update(1)
                         continue
-                if on_cluster:
+                if on_cluster or in_pool:
                     deferred.append((fam, target))
                     continue
                 needs_neg = bool(getattr(klass, "uses_negatives", True))
@@ -163,13 +172,13 @@ def train_detectors(
                         tmp.write_text(json.dumps(recorded, indent=2, sort_keys=True))
                 out[fam][target] = det
                 bar.update(1)
-        tasks = (
-            executor.as_completed(
-                _train_task, deferred, dataset, views, seed, split, max_negatives, hyperparameters
-            )
-            if deferred
-            else ()
-        )
+        shared = (dataset, views, seed, split, max_negatives, hyperparameters)
+        if not deferred:
+            tasks: Any = ()
+        elif on_cluster:
+            tasks = executor.as_completed(_train_task, deferred, *shared)
+        else:
+            tasks = _train_in_pool(deferred, shared, min(int(workers), len(deferred)))
         for i, det in tasks:
             fam, target = deferred[i]
             path = detector_path(out_dir, fam, target) if out_dir is not None else None
@@ -185,6 +194,44 @@ def train_detectors(
         bar.close()
     # the order of a run in process (families, then targets), wherever each was trained
     return {fam: {t: out[fam][t] for t in targets} for fam in families}
+
+
+def _pool_init(shared: tuple) -> None:
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover
+        pass
+    _POOL["shared"] = shared
+
+
+def _pool_run(i: int, job: tuple[str, str]) -> tuple[int, Detector]:
+    return i, _train_task(job, *_POOL["shared"])
+
+
+_POOL: dict[str, Any] = {}
+
+
+def _train_in_pool(jobs: list[tuple[str, str]], shared: tuple, workers: int):
+    """Yield ``(index into jobs, detector)`` as each job finishes in a pool of spawned processes."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from scrppl.parallel import single_threaded_children
+
+    with (
+        single_threaded_children(),
+        ProcessPoolExecutor(
+            max_workers=workers,
+            mp_context=mp.get_context("spawn"),
+            initializer=_pool_init,
+            initargs=(shared,),
+        ) as pool,
+    ):
+        futures = [pool.submit(_pool_run, i, job) for i, job in enumerate(jobs)]
+        for fut in as_completed(futures):
+            yield fut.result()
 
 
 def _train_task(
