@@ -345,3 +345,18 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     assert sorted(thin) == sorted(fit_module.RETRY_NONCENTERED)
     fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
     assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
+    # a split parameterisation (one class non-centred) gets 0.99 and every coefficient non-centred at once
+    split = centred + ("coef[1]",)
+    for bad, n_calls in ((1, 2), (2, 3)):
+        calls.clear(), lengths.clear()
+        n_bad[0] = bad
+        tree = fit_hierarchical(
+            key, data, meta, config, noncentered=split, progress=False, warn=False
+        )
+        assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
+        assert lengths == [(10, 500)] * 2 + [(10 * k, 500 * k)] * (n_calls - 2)
+        attempts = json.loads(tree.attrs["meta"])["attempts"]
+        assert [sorted(a["noncentered"]) for a in attempts] == [sorted(split)] + [
+            sorted(fit_module.RETRY_NONCENTERED)
+        ] * (n_calls - 1)
+        assert attempts[-1]["ok"]
