@@ -509,9 +509,16 @@ def _section_sweep(out: Path) -> str:
         f"{st.get('n_trials', '?')} paired trials per row, the hierarchical model with the "
         "instance-aware filter, entropy planning against a random unseen view. Views are the mean "
         "number to p(true) > 0.95 (a trial that never gets there counts as one more than it had); "
-        "*saved* is random minus planning with its paired bootstrap interval. The fits use shorter "
-        f"chains ({st.get('num_chains', '?')} x {st.get('num_samples', '?')} draws) than `scrppl fit`; "
-        "their diagnostics are in `sweep-summary.json`.\n\n"
+        "*saved* is random minus planning with its paired bootstrap interval. Each fit runs "
+        f"{st.get('num_chains', '?')} chains x {st.get('num_samples', '?')} draws with every azimuth "
+        "coefficient non-centred"
+        + (
+            f", and a fit that misses a diagnostic gate runs once more with {st['retry_longer']} times "
+            "the warm-up and draws"
+            if st.get("retry_longer", 1) > 1
+            else ", in one attempt"
+        )
+        + "; the diagnostics are in `sweep-summary.json`.\n\n"
     )
     if not rows:
         return text + "_(no points)_\n"

@@ -100,6 +100,8 @@ def test_settings_are_checked():
         S.SweepSettings(n_trials=1)
     with pytest.raises(ValueError, match="num_chains"):
         S.SweepSettings(num_chains=0)
+    with pytest.raises(ValueError, match="retry_longer"):
+        S.SweepSettings(retry_longer=0)
 
 
 def test_figure_has_both_panels(rng, tmp_path):
@@ -171,6 +173,37 @@ def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
     assert 0 <= a["ap"] <= 1 and a["n_steps"] == 8
     assert np.isfinite(a["ess_bulk_min"]) and a["divergences"] >= 0
     assert M.CONFIDENCE == 0.95
+
+
+@pytest.mark.slow
+def test_a_failed_fit_gets_one_longer_attempt_fully_noncentred(tmp_path):
+    import dataclasses
+
+    from scrppl.models.fit import RETRY_NONCENTERED
+    from scrppl.models.io import load_posterior
+    from scrppl.models.mcmc import SamplerConfig
+    from scrppl.models.simulate import random_true_model, simulate_response_table
+
+    grid = ViewGrid(8, (25.0,), (1.0,))
+    params = {("dpm", "c0"): random_true_model(jax.random.key(1), grid, kappa=0.0)}
+    table = simulate_response_table(
+        jax.random.key(7), params, ["c0", "c1", "c2"], 6, grid, {"fit": 4, "test": 2}
+    )
+    key = S.point_key(0, 1.0, "dpm", "c0")
+    # 2 chains x 60 draws cannot reach a bulk ESS of 400: every attempt fails its gates
+    for retry_longer, n_attempts in ((1, 1), (2, 2)):
+        settings = dataclasses.replace(TINY, retry_longer=retry_longer)
+        models = tmp_path / f"retry-{retry_longer}"
+        summary, _ = S.run_point(key, table, models, "dpm", "c0", settings)
+        assert summary["fit_attempts"] == n_attempts and not summary["fit_ok"]
+        tree = load_posterior(models / "hierarchical-dpm-c0.nc")
+        attempts = json.loads(tree.attrs["meta"])["attempts"]
+        assert [(a["num_warmup"], a["num_samples"]) for a in attempts] == [
+            (60 * k, 60 * k) for k in (1, retry_longer)[:n_attempts]
+        ]
+        assert all(sorted(a["noncentered"]) == sorted(RETRY_NONCENTERED) for a in attempts)
+        # the retry does not raise the acceptance target (the sampler's default throughout)
+        assert {a["target_accept_prob"] for a in attempts} == {SamplerConfig().target_accept_prob}
 
 
 @pytest.mark.slow

@@ -31,20 +31,20 @@ SWEEP_PROFILES = ("quick", "book", "full", "tiny")
 #: Settings per profile: levels, families, trials and the sampler and planner settings of each point.
 PROFILE_SETTINGS = {
     "full": dict(
-        levels="0,1,1.4,2", families="sift,bof,dpm", trials=10000, warmup=400, draws=500, chains=4,
-        n_samples=128, max_draws=8,
+        levels="0,1,1.4,2", families="sift,bof,dpm", trials=10000, warmup=500, draws=1000, chains=4,
+        n_samples=128, max_draws=8, retry_longer=2,
     ),
     "book": dict(
-        levels="0,1,1.4,2", families="sift,bof,dpm", trials=2000, warmup=400, draws=500, chains=4,
-        n_samples=128, max_draws=8,
+        levels="0,1,1.4,2", families="sift,bof,dpm", trials=2000, warmup=500, draws=1000, chains=4,
+        n_samples=128, max_draws=8, retry_longer=2,
     ),
     "quick": dict(
         levels="0,2", families="dpm", trials=500, warmup=200, draws=200, chains=2, n_samples=64,
-        max_draws=4,
+        max_draws=4, retry_longer=1,
     ),
     "tiny": dict(
         levels="0,2", families="dpm", trials=40, warmup=60, draws=60, chains=2, n_samples=8,
-        max_draws=2,
+        max_draws=2, retry_longer=1,
     ),
 }  # fmt: skip
 #: Targets swept when ``--targets`` is not given (as ``scrppl simulate``: the first of the table).
@@ -65,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--profile",
         choices=SWEEP_PROFILES,
         default="full",
-        help="'full' (levels 0,1,2 x sift,bof,dpm, 10000 trials), 'book' (the same, 2000 trials), "
+        help="'full' (levels 0,1,1.4,2 x sift,bof,dpm, 10000 trials), 'book' (the same, 2000 trials), "
         "'quick' (levels 0,2, dpm, 500 trials) or 'tiny' (seconds; for tests); also picks the default "
         "--root",
     )
@@ -172,6 +172,7 @@ def handler(args: argparse.Namespace) -> int:
         num_chains=settings["chains"],
         n_samples=settings["n_samples"],
         max_draws=settings["max_draws"],
+        retry_longer=settings["retry_longer"],
     )
     log(
         f"[sweep] levels {levels} x families {families} x targets {targets}, {trials} trials per point"
