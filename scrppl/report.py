@@ -501,6 +501,8 @@ def _section_sweep(out: Path) -> str:
                     "fit ok": "yes" if p.get("fit_ok") else "NO",
                 }
             )
+    from scrppl.models.fit import RETRY_ACCEPT
+
     text = (
         f"## {title}\n\n"
         "The paired experiment repeated with the run's detectors on new renderings of its held-out "
@@ -513,8 +515,8 @@ def _section_sweep(out: Path) -> str:
         f"{st.get('num_chains', '?')} chains x {st.get('num_samples', '?')} draws with every azimuth "
         "coefficient non-centred"
         + (
-            f", and a fit that misses a diagnostic gate runs once more with {st['retry_longer']} times "
-            "the warm-up and draws"
+            ", and a fit that misses a diagnostic gate is refitted at the acceptance target "
+            f"{RETRY_ACCEPT}, then with {st['retry_longer']} times the warm-up and draws"
             if st.get("retry_longer", 1) > 1
             else ", in one attempt"
         )

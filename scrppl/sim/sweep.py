@@ -21,8 +21,8 @@ takes the run's ``responses.nc`` instead: the same images scored by the same det
 and per (level, family, target):
 
 3. **fit** the hierarchical viewpoint model on the fit split as ``scrppl fit`` does
-   (:func:`scrppl.models.study.fit_pair`; fully non-centred, the chain lengths and the one retry the
-   sweep's, the diagnostics recorded);
+   (:func:`scrppl.models.study.fit_pair`; fully non-centred, with the sweep's chain lengths and
+   retries, the diagnostics recorded);
 4. **simulate** ``n_trials`` paired trials on the test split: the hierarchical model with the
    instance-aware filter, the entropy planner and a random unseen view on the same trials and keys.
 
@@ -107,8 +107,10 @@ class SweepSettings:
     n_boot
         Bootstrap resamples of the paired interval.
     retry_longer
-        A fit that fails its diagnostics is run once more with this many times the warm-up and draws
-        (``1``: never; the failure is recorded either way).
+        A fit that fails its diagnostics is refitted as ``scrppl fit`` refits it (it starts fully
+        non-centred, so without the switch of parameterisation): at the acceptance target
+        :data:`~scrppl.models.fit.RETRY_ACCEPT`, then with this many times the warm-up and draws. ``1``:
+        no retry at all (a failure is recorded either way).
     """
 
     n_trials: int = 10000
@@ -321,8 +323,8 @@ def run_point(
 
     ``key`` is split into the keys of the fit, the trials and the planners (the same planner key for
     both planners: paired trials). The hierarchical model is fitted on the fit split as
-    :func:`scrppl.models.study.fit_pair` fits it, fully non-centred and with at most one retry
-    (``settings.retry_longer``; a fit failing its diagnostics after that is recorded, not rerun), and
+    :func:`scrppl.models.study.fit_pair` fits it, fully non-centred and with at most two retries
+    (``settings.retry_longer``; a fit failing its diagnostics after them is recorded, not rerun), and
     saved in ``models_dir``; it is always fitted anew: the point, not the fit,
     is the unit :func:`run_sweep` caches.
 
@@ -339,7 +341,7 @@ def run_point(
 
     from scrppl.detectors.evaluation import detector_ap
     from scrppl.models.data import extract_view_data
-    from scrppl.models.fit import RETRY_NONCENTERED, fit_hierarchical
+    from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED, fit_hierarchical
     from scrppl.models.io import model_path, save_posterior
     from scrppl.models.mcmc import SamplerConfig
     from scrppl.planning import PlannerConfig
@@ -355,19 +357,18 @@ def run_point(
     )
     t0 = time.perf_counter()
     data, meta = extract_view_data(table, family, target, split="fit")
-    # every azimuth coefficient non-centred from the start (the parameterisation that let the paper
-    # preset's weak and outlier-ridden fits pass, scrppl.models.fit.RETRY_NONCENTERED); a fit that fails
-    # gets at most one more attempt, with longer chains (fit_hierarchical's ladder, whose 0.99 step is
-    # skipped by asking for the target the sampler has), so that a point's cost stays bounded
-    longer = settings.retry_longer > 1
+    # every azimuth coefficient non-centred from the start (one ring leaves a few responses per cell,
+    # where choose_noncentered picks it too); a fit that fails gets fit_hierarchical's retries: 0.99
+    # (the divergences of strong detectors' fits), then longer chains (R-hat and ESS near their gates)
+    retry = settings.retry_longer > 1
     tree = fit_hierarchical(
         k_fit,
         data,
         meta,
         sampler,
         noncentered=RETRY_NONCENTERED,
-        retry_accept=sampler.target_accept_prob if longer else None,
-        retry_longer=settings.retry_longer if longer else None,
+        retry_accept=RETRY_ACCEPT if retry else None,
+        retry_longer=settings.retry_longer if retry else None,
         progress=progress,
         warn=False,
     )
