@@ -58,6 +58,7 @@ __all__ = [
     "local_cluster",
     "worker_env",
     "single_threaded_children",
+    "spawned_pool_map",
     "check_scheduler",
 ]
 
@@ -99,6 +100,37 @@ def single_threaded_children() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+def spawned_pool_map(
+    fn: Callable[[Any], Any],
+    items: Iterable[Any],
+    workers: int,
+    initializer: Callable[..., None] | None = None,
+    initargs: tuple = (),
+) -> Iterator[Any]:
+    """Yield ``fn(item)`` for every item as it finishes, computed in ``workers`` spawned processes.
+
+    The processes are started with the *spawn* method (JAX is not fork-safe) inside
+    :func:`single_threaded_children`; ``initializer(*initargs)`` runs once in each (the place to hand it
+    large shared inputs). Results come in the order they finish, not the order of ``items``: pass the
+    index along with the item where it matters. An exception of ``fn`` is raised here.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with (
+        single_threaded_children(),
+        ProcessPoolExecutor(
+            max_workers=workers,
+            mp_context=mp.get_context("spawn"),
+            initializer=initializer,
+            initargs=initargs,
+        ) as pool,
+    ):
+        futures = [pool.submit(fn, item) for item in items]
+        for fut in as_completed(futures):
+            yield fut.result()
 
 
 def worker_env() -> dict[str, str]:

@@ -143,16 +143,22 @@ TINY = S.SweepSettings(
 )
 
 
-@pytest.mark.slow
-def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
+def _point_table():
+    """A simulated response table of one dpm target ``c0`` (and two others) on one ring of 8 azimuths."""
     from scrppl.models.simulate import random_true_model, simulate_response_table
-    from scrppl.sim import metrics as M
 
     grid = ViewGrid(8, (25.0,), (1.0,))
     params = {("dpm", "c0"): random_true_model(jax.random.key(1), grid, kappa=0.0)}
-    table = simulate_response_table(
+    return simulate_response_table(
         jax.random.key(7), params, ["c0", "c1", "c2"], 6, grid, {"fit": 4, "test": 2}
     )
+
+
+@pytest.mark.slow
+def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
+    from scrppl.sim import metrics as M
+
+    table = _point_table()
     key = S.point_key(0, 1.0, "dpm", "c0")
     a, ds = S.run_point(key, table, tmp_path / "a", "dpm", "c0", TINY)
     b, _ = S.run_point(key, table, tmp_path / "b", "dpm", "c0", TINY)
@@ -182,13 +188,8 @@ def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred(tmp_path):
     from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED
     from scrppl.models.io import load_posterior
     from scrppl.models.mcmc import SamplerConfig
-    from scrppl.models.simulate import random_true_model, simulate_response_table
 
-    grid = ViewGrid(8, (25.0,), (1.0,))
-    params = {("dpm", "c0"): random_true_model(jax.random.key(1), grid, kappa=0.0)}
-    table = simulate_response_table(
-        jax.random.key(7), params, ["c0", "c1", "c2"], 6, grid, {"fit": 4, "test": 2}
-    )
+    table = _point_table()
     key = S.point_key(0, 1.0, "dpm", "c0")
     first = SamplerConfig().target_accept_prob
     # 2 chains x 60 draws cannot reach a bulk ESS of 400: every attempt fails its gates

@@ -174,23 +174,11 @@ def _run_parallel(
     todo: list[Chunk],
     workers: int,
 ) -> Iterable[tuple[Chunk, np.ndarray, dict[str, float]]]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from scrppl.parallel import spawned_pool_map
 
-    from scrppl.parallel import single_threaded_children
-
-    with (
-        single_threaded_children(),
-        ProcessPoolExecutor(
-            max_workers=workers,
-            mp_context=mp.get_context("spawn"),
-            initializer=_worker_init,
-            initargs=(dataset, detectors, shape),
-        ) as pool,
-    ):
-        futures = [pool.submit(_worker_run, c) for c in todo]
-        for fut in as_completed(futures):
-            yield fut.result()
+    yield from spawned_pool_map(
+        _worker_run, todo, workers, _worker_init, (dataset, detectors, shape)
+    )
 
 
 def _group_task(

@@ -206,7 +206,8 @@ def _pool_init(shared: tuple) -> None:
     _POOL["shared"] = shared
 
 
-def _pool_run(i: int, job: tuple[str, str]) -> tuple[int, Detector]:
+def _pool_run(item: tuple[int, tuple[str, str]]) -> tuple[int, Detector]:
+    i, job = item
     return i, _train_task(job, *_POOL["shared"])
 
 
@@ -215,23 +216,9 @@ _POOL: dict[str, Any] = {}
 
 def _train_in_pool(jobs: list[tuple[str, str]], shared: tuple, workers: int):
     """Yield ``(index into jobs, detector)`` as each job finishes in a pool of spawned processes."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from scrppl.parallel import spawned_pool_map
 
-    from scrppl.parallel import single_threaded_children
-
-    with (
-        single_threaded_children(),
-        ProcessPoolExecutor(
-            max_workers=workers,
-            mp_context=mp.get_context("spawn"),
-            initializer=_pool_init,
-            initargs=(shared,),
-        ) as pool,
-    ):
-        futures = [pool.submit(_pool_run, i, job) for i, job in enumerate(jobs)]
-        for fut in as_completed(futures):
-            yield fut.result()
+    yield from spawned_pool_map(_pool_run, list(enumerate(jobs)), workers, _pool_init, (shared,))
 
 
 def _train_task(
