@@ -312,23 +312,35 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     with pytest.warns(DiagnosticsWarning):  # without a retry the failure is reported
         fit_hierarchical(key, data, meta, config, retry_accept=None, progress=False)
     assert calls == [config.target_accept_prob]
-    # a retry that fails too gets every coefficient non-centred, then longer chains, and no more
+    # a retry that fails too gets every coefficient non-centred, then longer chains, and no more; a split
+    # parameterisation (one class non-centred) gets 0.99 and every coefficient non-centred at once.
+    # Cases: (start parameterisation, failing attempts, attempts made, attempts before the switch)
     k = fit_module.RETRY_LONGER
     centred = fit_module.DEFAULT_NONCENTERED  # the azimuth coefficients centred
-    chosen = sorted(centred)
-    for bad, n_calls in ((2, 3), (3, 4), (4, 4)):
+    split = centred + ("coef[1]",)
+    cases = [
+        (centred, 2, 3, 2),
+        (centred, 3, 4, 2),
+        (centred, 4, 4, 2),
+        (split, 1, 2, 1),
+        (split, 2, 3, 1),
+    ]
+    for start, bad, n_calls, n_start in cases:
         calls.clear(), lengths.clear()
         n_bad[0] = bad
         tree = fit_hierarchical(
-            key, data, meta, config, noncentered=centred, progress=False, warn=False
+            key, data, meta, config, noncentered=start, progress=False, warn=False
         )
         assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
-        assert lengths == [(10, 500)] * 3 + [(10 * k, 500 * k)] * (n_calls - 3)
+        n_short = n_start + 1  # the attempts before the longer chains
+        assert lengths == [(10, 500)] * min(n_calls, n_short) + [(10 * k, 500 * k)] * max(
+            0, n_calls - n_short
+        )
         attempts = json.loads(tree.attrs["meta"])["attempts"]
         assert [a["ok"] for a in attempts] == [False] * (n_calls - 1) + [n_calls > bad]
-        assert [sorted(a["noncentered"]) for a in attempts] == [chosen] * 2 + [
+        assert [sorted(a["noncentered"]) for a in attempts] == [sorted(start)] * n_start + [
             sorted(fit_module.RETRY_NONCENTERED)
-        ] * (n_calls - 2)
+        ] * (n_calls - n_start)
         # the saved parameterisation is that of the attempt returned
         assert sorted(json.loads(tree.attrs["meta"])["noncentered"]) == sorted(
             fit_module.RETRY_NONCENTERED
@@ -345,18 +357,3 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     assert sorted(thin) == sorted(fit_module.RETRY_NONCENTERED)
     fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
     assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
-    # a split parameterisation (one class non-centred) gets 0.99 and every coefficient non-centred at once
-    split = centred + ("coef[1]",)
-    for bad, n_calls in ((1, 2), (2, 3)):
-        calls.clear(), lengths.clear()
-        n_bad[0] = bad
-        tree = fit_hierarchical(
-            key, data, meta, config, noncentered=split, progress=False, warn=False
-        )
-        assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
-        assert lengths == [(10, 500)] * 2 + [(10 * k, 500 * k)] * (n_calls - 2)
-        attempts = json.loads(tree.attrs["meta"])["attempts"]
-        assert [sorted(a["noncentered"]) for a in attempts] == [sorted(split)] + [
-            sorted(fit_module.RETRY_NONCENTERED)
-        ] * (n_calls - 1)
-        assert attempts[-1]["ok"]
