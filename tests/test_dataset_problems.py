@@ -24,8 +24,8 @@ from scrppl.datasets.savarese import load_savarese
 
 
 # -- complete or truncated ------------------------------------------------------------------------
-def encoded(ext: str, params=(), gray=False) -> bytes:
-    y, x = np.mgrid[0:40, 0:56]
+def encoded(ext: str, params=(), gray=False, width=56) -> bytes:
+    y, x = np.mgrid[0:40, 0:width]
     img = np.stack([x * 4 % 256, y * 6 % 256, (x + y) % 256], -1).astype(np.uint8)
     ok, buf = cv2.imencode(ext, img[:, :, 0] if gray else img, list(params))
     assert ok
@@ -47,6 +47,11 @@ FILES = {
     "grey png": lambda: encoded(".png", gray=True),
     "bmp": lambda: encoded(".bmp"),
     "grey bmp": lambda: encoded(".bmp", gray=True),
+    # rows padded to 4 bytes: 5 x 3 = 15 bytes -> 16, 7 x 3 = 21 -> 24, 5 x 1 = 5 -> 8 (a check that
+    # forgets the padding accepts files cut inside the last rows' padding)
+    "bmp 5 pixels wide": lambda: encoded(".bmp", width=5),
+    "bmp 7 pixels wide": lambda: encoded(".bmp", width=7),
+    "grey bmp 5 pixels wide": lambda: encoded(".bmp", gray=True, width=5),
 }
 
 
@@ -61,6 +66,9 @@ def rejected(data: bytes) -> bool:
 @pytest.mark.parametrize("name", FILES)
 def test_every_truncation_is_detected(name):
     """Brute force: the whole file passes (with bytes appended too), every strict prefix fails.
+
+    The BMPs of odd widths catch a BMP check that ignores row padding (row stride taken as
+    ``width * bytes per pixel`` instead of rounded up to 4 bytes).
 
     Prefixes long enough to show the format's signature are caught by the structure check itself;
     shorter ones do not decode.

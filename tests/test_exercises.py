@@ -136,6 +136,34 @@ def test_check_function_matches_mistakes_and_general_hints():
         check_function(3, lambda x: 2 * x, cases, name="double(x)")
 
 
+def test_a_matching_mistake_shows_its_hint_only():
+    """Catches the checker showing several hints when a registered mistake matches and a general hint
+    also applies (or when two registered mistakes match): only the first matching mistake's hint shows."""
+    cases = [Case((np.arange(4.0),), "four values")]
+    mistakes = [
+        Mistake("you added instead of doubling", lambda x: x + 1),
+        Mistake("you squared instead of doubling", lambda x: x**2),
+        Mistake("you squared, then added nothing", lambda x: x**2 + 0),  # matches as well
+    ]
+    for wrong, only in (
+        (lambda x: x**2, "Hint: you squared instead of doubling"),
+        (lambda x: x + 1, "Hint: you added instead of doubling"),
+    ):
+        with pytest.raises(ExerciseFailed) as info:
+            check_function(
+                wrong, lambda x: 2 * x, cases, name="double(x)", mistakes=mistakes,
+                hint="multiply by two",
+            )  # fmt: skip
+        hints = [line for line in str(info.value).splitlines() if line.startswith("Hint:")]
+        assert hints == [only]
+    # no mistake matches: the general hint alone
+    with pytest.raises(ExerciseFailed) as info:
+        compare(np.zeros(4), 2 * np.arange(4.0), name="double(x)", case=cases[0],
+                mistakes=mistakes, hint="multiply by two")  # fmt: skip
+    hints = [line for line in str(info.value).splitlines() if line.startswith("Hint:")]
+    assert hints == ["Hint: multiply by two"]
+
+
 def test_registration_validates_ids_and_difficulty():
     with pytest.raises(ValueError, match="look like '2.1'"):
         exercise("2", "t", "easy", reference=tuple, wrong=list)

@@ -390,6 +390,41 @@ def test_report_regime_checks_the_stated_criteria(tmp_path):
     assert "## Regime" not in write_report(tmp_path / "empty").read_text()
 
 
+@pytest.mark.parametrize(
+    ("random_views", "met"),
+    [((3.0,), True), ((2.5, 3.5), True), ((2.99,), False), ((2.5, 3.49), False), ((3.01,), True)],
+)
+def test_regime_ambiguity_criterion_includes_its_boundary(tmp_path, random_views, met):
+    """Catches "at least 3 random views" written as "more than 3": a mean of exactly 3.0 (one target at
+    3, or 2.5 and 3.5) meets the criterion, anything below does not."""
+    from scrppl.report import REGIME_METHOD, REGIME_MIN_RANDOM_VIEWS, regime_numbers
+
+    assert REGIME_MIN_RANDOM_VIEWS == 3.0  # the criterion as stated
+    targets = {
+        f"t{k}": {
+            "large_experiment": {
+                REGIME_METHOD: {"views_to_confidence": {"random": v, "sampled": 2.0}}
+            }
+        }
+        for k, v in enumerate(random_views)
+    }
+    (tmp_path / "simulate-summary.json").write_text(json.dumps({"targets": targets}))
+    r = regime_numbers(tmp_path)
+    assert r["random_views"] == pytest.approx(sum(random_views) / len(random_views))
+    assert r["ambiguity_criterion_met"] is met
+
+
+def test_regime_ap_criterion_includes_both_ends(tmp_path):
+    """The AP range 0.55-0.75 of the regime is closed: both ends meet it, values just outside do not."""
+    from scrppl.report import regime_numbers
+
+    (tmp_path / "detectors").mkdir()
+    quality = tmp_path / "detectors" / "quality.json"
+    for ap, met in ((0.55, True), (0.75, True), (0.65, True), (0.5499, False), (0.7501, False)):
+        quality.write_text(json.dumps({"mean_average_precision": {"dpm": ap}}))
+        assert regime_numbers(tmp_path)["ap_criterion_met"] is met, ap
+
+
 def test_a_fit_stage_whose_fits_failed_their_diagnostics_is_not_current(tmp_path):
     args = argparse.Namespace(
         root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="book", strict=True

@@ -296,3 +296,53 @@ def test_diagnostics(rng):
     assert "x (" not in text.split("bulk ESS")[0]
     with pytest.warns(DiagnosticsWarning, match="alpha"):
         warn_if_failed(rep, "dpm/car")
+
+
+def test_a_parameter_stuck_in_every_chain_fails_the_rhat_gate(rng):
+    """Catches an R-hat gate written as ``rhat > 1.01`` (or a worst element taken with ``nanmax``): a
+    parameter, or one coordinate of one, constant in every chain has R-hat 0/0 = NaN, which such a gate
+    lets through; the fit must fail, naming the parameter. (Its bulk ESS is no help: ArviZ reports the
+    number of draws for a constant.)"""
+    free = rng.normal(size=(4, 1000, 3))
+    free[..., 1] = 0.25  # one coordinate of a vector parameter never moves
+    tree = az.from_dict(
+        {
+            "posterior": {
+                "x": rng.normal(size=(4, 1000)),
+                "stuck": np.full((4, 1000), 0.7),
+                "beta": free,
+            },
+            "sample_stats": {
+                "diverging": np.zeros((4, 1000), bool),
+                "energy": rng.normal(size=(4, 1000)),
+            },
+        }
+    )
+    assert diagnose(tree, var_names=["x"])["ok"]
+    # a vector parameter whose other coordinates mix well, and a scalar: each fails alone
+    assert not diagnose(tree, var_names=["x", "beta"])["ok"]
+    assert not diagnose(tree, var_names=["x", "stuck"])["ok"]
+    rep = diagnose(tree)
+    assert np.isnan(rep["rhat_max"]["stuck"]) and np.isnan(rep["rhat_max"]["beta"])
+    assert rep["rhat_max"]["x"] < 1.01 and rep["divergences"] == 0
+    assert not rep["ok"]
+    (rhat_failure,) = [f for f in rep["failures"] if f.startswith("R-hat")]
+    assert "stuck" in rhat_failure and "beta" in rhat_failure and "x (" not in rhat_failure
+    with pytest.warns(DiagnosticsWarning, match="stuck"):
+        warn_if_failed(rep, "dpm/car")
+
+
+def test_a_chain_whose_energy_never_moves_fails_the_ebfmi_gate(rng):
+    """Catches an E-BFMI gate written as ``ebfmi < 0.3``: a chain whose energy is constant has E-BFMI
+    0/0 = NaN, which that comparison lets through; the fit must fail, naming the chain."""
+    energy = rng.normal(size=(4, 1000))
+    energy[2] = 1.5
+    tree = az.from_dict(
+        {
+            "posterior": {"x": rng.normal(size=(4, 1000))},
+            "sample_stats": {"diverging": np.zeros((4, 1000), bool), "energy": energy},
+        }
+    )
+    rep = diagnose(tree)
+    assert np.isnan(rep["ebfmi"][2]) and not rep["ok"]
+    assert any(f.startswith("E-BFMI") and "[2]" in f for f in rep["failures"])

@@ -101,6 +101,59 @@ def test_a_task_that_raises_is_retried_and_errors_reach_the_caller(remote, tmp_p
         remote.map(divmod, [1, 2], 0, progress=False)
 
 
+def _logged_square(item, folder):
+    (folder / f"{item}-{time.perf_counter_ns()}-{os.getpid()}").touch()  # one file per run
+    return item * item
+
+
+class _CancellingClient:
+    """A Dask client that cancels the first submission of chosen items, as Dask cancels the tasks whose
+    scattered shared inputs were lost with their workers; everything else goes to the real client."""
+
+    def __init__(self, client, cancel):
+        self._client = client
+        self.cancel_once = set(cancel)
+        self.submitted: list = []  # the items, in the order their tasks were submitted
+
+    def __getattr__(self, name):
+        return getattr(self._client, name)
+
+    def submit(self, func, *args, **kwargs):
+        fut = self._client.submit(func, *args, **kwargs)
+        item = args[2]  # DaskExecutor submits _call(ref, env, item, *shared)
+        self.submitted.append(item)
+        if item in self.cancel_once:
+            self.cancel_once.discard(item)
+            self._client.cancel([fut])
+        return fut
+
+
+@pytest.mark.parametrize("how", ["as_completed", "map"])
+def test_resubmitted_tasks_land_on_their_items_and_finished_ones_are_not_rerun(tmp_path, how):
+    """Catches the executor's resubmission after lost shared inputs putting results on the wrong items
+    (e.g. the unfinished tasks renumbered from 0) or rerunning tasks that had finished."""
+    from distributed import Client
+
+    from scrppl.parallel import DaskExecutor
+
+    items = [10, 11, 12, 13, 14, 15]  # values unlike their indices 0..5
+    with Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=":0") as real:
+        client = _CancellingClient(real, cancel=[12, 14])
+        ex = DaskExecutor(client, retries=2)
+        if how == "map":
+            assert ex.map(_logged_square, items, tmp_path, progress=False) == [
+                100, 121, 144, 169, 196, 225,
+            ]  # fmt: skip
+        else:
+            got = list(ex.as_completed(_logged_square, items, tmp_path))
+            assert sorted(got) == [(0, 100), (1, 121), (2, 144), (3, 169), (4, 196), (5, 225)]
+    # the two cancelled tasks were submitted again, once; every other task exactly once
+    assert sorted(client.submitted) == [10, 11, 12, 12, 13, 14, 14, 15]
+    assert client.submitted[6:] in ([12, 14], [14, 12])
+    runs = [int(p.name.split("-")[0]) for p in tmp_path.iterdir()]
+    assert all(runs.count(i) == 1 for i in (10, 11, 13, 15))  # finished tasks never rerun
+
+
 def test_scheduler_values_are_checked():
     assert check_scheduler(None) is None and check_scheduler("local") == "local"
     assert check_scheduler("tcp://10.0.0.5:8786") == "tcp://10.0.0.5:8786"

@@ -298,6 +298,22 @@ def test_same_instance_in_two_folders(tmp_path):
         load_savarese(tmp_path, validate=False)
 
 
+def test_report_mode_leaves_out_an_instance_found_in_two_folders(tmp_path):
+    """Catches report mode loading an instance found in two folders (``car_1`` and ``car_01``, both
+    instance 1): neither folder may be used, the clash is reported once, and the other instances load."""
+    write_tree(tmp_path, {"car": ("Car", [1, 2], [(a, 1, 1) for a in range(1, 9)])})
+    write_view(tmp_path / "car" / "car_01", "Car", 1, 1, 2, 1)  # instance 1 again, another view
+    ds = load_savarese(tmp_path, errors="report", progress=False)
+    # instance 2 only (0-based 1): nothing of instance 1
+    assert sorted(set(ds.index["instance"])) == [1]
+    assert len(ds) == 8 and (ds.index["elevation"] == 0).all()
+    assert len(ds.problems) == 1
+    (problem,) = ds.problems
+    assert problem.artefact == "instance folder" and problem.path.parent == tmp_path / "car"
+    assert problem.path.name in ("car_1", "car_01")
+    assert "car_1" in problem.message and "car_01" in problem.message
+
+
 def test_empty_category_folder(tmp_path):
     small_tree(tmp_path)
     (tmp_path / "iron").mkdir()

@@ -279,6 +279,24 @@ def test_calibration_and_bootstrap(rng):
     np.testing.assert_allclose([d, dlo, dhi], 0.5)  # identical pairs: no spread
 
 
+def test_calibration_bins_are_floored_half_open_intervals():
+    """Catches calibration bins placed by rounding ``p * n_bins`` instead of flooring it: bin ``b`` of ten
+    is ``[b / 10, (b + 1) / 10)`` (the last one closed at 1). By hand: 0.06 lies in bin 0, 0.14 in bin 1,
+    so ECE = 1/2 |0.06 - 1| + 1/2 |0.14 - 0| = 0.54 (rounding would pool both in bin 1: 0.4)."""
+    mean_p, frac, count = M.reliability([0.06, 0.14], [1, 0], n_bins=10)
+    np.testing.assert_array_equal(count, [1, 1, 0, 0, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_allclose(mean_p[:2], [0.06, 0.14])
+    np.testing.assert_array_equal(frac[:2], [1.0, 0.0])
+    assert np.isnan(mean_p[2:]).all() and np.isnan(frac[2:]).all()
+    assert M.expected_calibration_error([0.06, 0.14], [1, 0]) == pytest.approx(0.54)
+    # five bins of width 0.2: 0 and 0.19 in the first, 0.21 and 0.39 in the second, 0.99 and 1 in the last
+    _, _, count = M.reliability([0.0, 0.19, 0.21, 0.39, 0.99, 1.0], [0, 1, 0, 1, 1, 1], n_bins=5)
+    np.testing.assert_array_equal(count, [2, 2, 0, 0, 2])
+    # ECE by hand: |0.095 - 0.5| / 3 + |0.3 - 0.5| / 3 + |0.995 - 1| / 3
+    got = M.expected_calibration_error([0.0, 0.19, 0.21, 0.39, 0.99, 1.0], [0, 1, 0, 1, 1, 1], 5)
+    assert got == pytest.approx((0.405 + 0.2 + 0.005) / 3)
+
+
 def test_bootstrap_intervals_have_the_stated_level(rng):
     # The mean of 400 normal values is normal, so a percentile-bootstrap interval at level q has the
     # half-width z_q * se. 5 % of it is tighter than the gap between levels (a 90 % interval is 16 %

@@ -82,6 +82,81 @@ def test_level_config_keeps_the_runs_instances_and_splits_on_one_ring():
     assert S.level_label(1) == "level-1" and S.level_label(0.25) == "level-0p25"
 
 
+# the domains' robot nuisances by hand: which preset's held-out images each level renders
+OBSERVED = {  # run's domain -> {level: whether the run's own images are that level's}
+    "clean": {0.0: True, 0.5: False, 1.0: False, 2.0: False},
+    "robot": {0.0: False, 0.5: False, 1.0: True, 1.4: False, 1.5: False, 2.0: False},
+    "paper": {1.0: False, 1.4: True, 2.0: False},
+    "hard": {1.0: False, 1.4: False, 2.0: True},
+}
+
+
+@pytest.mark.parametrize("preset", list(OBSERVED))
+def test_run_observed_level_only_where_the_levels_domain_is_the_runs(preset):
+    """Catches the sweep reusing the run's ``responses.nc`` at a level whose imaging domain differs from
+    the run's (e.g. a ``robot`` run's table served as level 0 or 2): only the level whose robot nuisances
+    are the run's preset may take it."""
+    base = SyntheticConfig.for_profile("book", "clean")
+    config = dataclasses.replace(base, domain=PRESETS[preset])
+    got = {level: S.run_observed_level(config, level) for level in OBSERVED[preset]}
+    assert got == OBSERVED[preset]
+
+
+def test_run_observed_level_compares_nuisances_not_names():
+    """Catches a reuse rule that compares the domains' names (or their catalogue flag) instead of what
+    the held-out images depend on, the robot nuisances."""
+    from scrppl.datasets.synthetic.domain import Domain, Nuisance
+
+    base = SyntheticConfig.for_profile("book", "clean")
+    # named like the robot preset, but without a single nuisance: its held-out images are level 0's
+    fake_robot = dataclasses.replace(base, domain=Domain("robot", catalogue=True, robot=Nuisance()))
+    assert not S.run_observed_level(fake_robot, 1.0) and S.run_observed_level(fake_robot, 0.0)
+    # the robot preset's nuisances under another name, with uncatalogued training images
+    renamed = Domain("my-room", catalogue=False, robot=PRESETS["robot"].robot)
+    assert S.run_observed_level(dataclasses.replace(base, domain=renamed), 1.0)
+
+
+class _FakeDetector:
+    """What :func:`scrppl.sim.sweep.reuse_run_table` asks of a detector: its fingerprint."""
+
+    def __init__(self, tag: str) -> None:
+        self.tag = tag
+
+    def fingerprint(self) -> str:
+        return self.tag
+
+
+def test_reuse_run_table_only_at_the_runs_own_level(tmp_path):
+    """Catches reuse_run_table handing out the run's table at a level whose domain differs from the
+    run's (the rule skipped or inverted), while it must hand it out at the run's own level, train split
+    blanked."""
+    from scrppl.responses import empty_response_table, save_response_table
+
+    config = SyntheticConfig(
+        categories=("bicycle", "cellphone"), n_instances=3,
+        grid=ViewGrid(8, (25.0,), (1.0,)), width=64, height=48, domain="robot",
+    )  # fmt: skip
+    split = np.array([["train", "fit", "test"]] * 2, dtype=object)
+    table = empty_response_table(["sift"], ["bicycle"], config.categories, 3, config.grid, split)
+    table["score"][:] = np.arange(table["score"].size, dtype=float).reshape(table["score"].shape)
+    table.attrs["detectors"] = json.dumps({"sift/bicycle": "abc"})
+    save_response_table(table, tmp_path / "responses.nc")
+    detectors = {"sift": {"bicycle": _FakeDetector("abc")}}
+    assert S.reuse_run_table(tmp_path, config, 0.0, detectors) is None
+    assert S.reuse_run_table(tmp_path, config, 2.0, detectors) is None
+    assert S.reuse_run_table(tmp_path, config, 0.5, detectors) is None
+    got = S.reuse_run_table(tmp_path, config, 1.0, detectors)
+    assert got is not None
+    assert got["split"].values.tolist() == [["", "fit", "test"]] * 2
+    assert np.isnan(got["score"].sel(instance=0)).all()
+    np.testing.assert_array_equal(
+        got["score"].sel(instance=[1, 2]).values, table["score"].sel(instance=[1, 2]).values
+    )
+    # other detectors than the ones that scored the table: not reused either
+    others = {"sift": {"bicycle": _FakeDetector("x")}}
+    assert S.reuse_run_table(tmp_path, config, 1.0, others) is None
+
+
 def test_point_keys_repeat_and_differ_by_point():
     data = jax.random.key_data
     k = S.point_key(0, 1.0, "dpm", "car")

@@ -39,7 +39,8 @@ def diagnose(posterior: xr.DataTree, var_names: list[str] | None = None) -> dict
 
     Returns
     -------
-    dict with ``rhat_max``, ``ess_bulk_min``, ``ess_tail_min`` (per parameter: the worst element),
+    dict with ``rhat_max``, ``ess_bulk_min``, ``ess_tail_min`` (per parameter: the worst element; NaN if
+    any element's is NaN, as R-hat is for an element constant in every chain, and NaN fails its gate),
     ``divergences`` (count), ``ebfmi`` (per chain), ``n_draws`` (chains x draws), ``failures`` (list of
     readable strings) and ``ok`` (bool).
     """
@@ -49,16 +50,21 @@ def diagnose(posterior: xr.DataTree, var_names: list[str] | None = None) -> dict
     if var_names is None:
         var_names = list(post.data_vars)
     var_names = [v for v in var_names if v in post.data_vars]
-    rhat = az.rhat(posterior, var_names=var_names).to_dataset()
-    ess_bulk = az.ess(posterior, var_names=var_names, method="bulk").to_dataset()
-    ess_tail = az.ess(posterior, var_names=var_names, method="tail").to_dataset()
+    # a parameter constant in every chain has R-hat 0/0 = NaN (a chain of constant energy E-BFMI NaN):
+    # reported below as a failure, so NumPy's warning about the division adds nothing
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rhat = az.rhat(posterior, var_names=var_names).to_dataset()
+        ess_bulk = az.ess(posterior, var_names=var_names, method="bulk").to_dataset()
+        ess_tail = az.ess(posterior, var_names=var_names, method="tail").to_dataset()
+        ebfmi = np.asarray(az.bfmi(posterior).to_dataset()["energy"].values, dtype=float).ravel()
     stats = posterior["sample_stats"].to_dataset()
     n_div = int(np.asarray(stats["diverging"].values).sum())
-    ebfmi = np.asarray(az.bfmi(posterior).to_dataset()["energy"].values, dtype=float).ravel()
+    # np.max, not np.nanmax: one NaN element (a coordinate stuck at one value) makes its parameter NaN,
+    # which the gates below fail (``not v <= 1.01``)
     report = {
-        "rhat_max": _per_variable(rhat, np.nanmax),
-        "ess_bulk_min": _per_variable(ess_bulk, np.nanmin),
-        "ess_tail_min": _per_variable(ess_tail, np.nanmin),
+        "rhat_max": _per_variable(rhat, np.max),
+        "ess_bulk_min": _per_variable(ess_bulk, np.min),
+        "ess_tail_min": _per_variable(ess_tail, np.min),
         "divergences": n_div,
         "ebfmi": [float(x) for x in ebfmi],
         "n_draws": int(post.sizes["chain"] * post.sizes["draw"]),
@@ -78,10 +84,10 @@ def diagnose(posterior: xr.DataTree, var_names: list[str] | None = None) -> dict
         failures.append(f"bulk ESS < {THRESHOLDS['ess_bulk_min']:.0f}: " + ", ".join(bad))
     if n_div > THRESHOLDS["divergences"]:
         failures.append(f"{n_div} divergent transitions")
-    if (ebfmi < THRESHOLDS["ebfmi_min"]).any():
+    low = ~(ebfmi >= THRESHOLDS["ebfmi_min"])  # NaN (a chain whose energy never moved) fails too
+    if low.any():
         failures.append(
-            f"E-BFMI < {THRESHOLDS['ebfmi_min']} in chains "
-            f"{np.flatnonzero(ebfmi < THRESHOLDS['ebfmi_min']).tolist()}"
+            f"E-BFMI < {THRESHOLDS['ebfmi_min']} in chains {np.flatnonzero(low).tolist()}"
         )
     report["failures"] = failures
     report["ok"] = not failures

@@ -16,7 +16,7 @@ held-out average precision. Per level:
 
 (a level whose configuration is the run's own -- a one-ring run such as ``book`` at its preset's level --
 takes the run's ``responses.nc`` instead: the same images scored by the same detectors,
-:func:`reuse_run_table`);
+:func:`reuse_run_table`; the rule is :func:`run_observed_level`);
 
 and per (level, family, target):
 
@@ -60,6 +60,7 @@ __all__ = [
     "level_config",
     "render_level",
     "score_level",
+    "run_observed_level",
     "reuse_run_table",
     "point_key",
     "summarise_point",
@@ -214,6 +215,19 @@ def score_level(dataset, detectors, path: str | Path, *, workers: int = 1, progr
     return score_dataset(dataset, detectors, path=path, progress=progress, workers=workers)
 
 
+def run_observed_level(config, level: float) -> bool:
+    """Whether the run's own fit and test images are a level's: the reuse rule of :func:`reuse_run_table`.
+
+    True exactly when the robot nuisances of the run's domain (``config.domain.robot``) equal those of
+    the level's domain (:func:`~scrppl.datasets.synthetic.domain.domain_at_level`), compared field by
+    field -- not by the domains' names, which a custom domain may share with a preset. The held-out
+    images depend on the robot nuisances only: the ``catalogue`` flag changes the train split alone,
+    which the sweep does not use. So a ``robot`` run observed level 1, a ``paper`` run level 1.4, a
+    ``hard`` run level 2, a ``clean`` run level 0 (no nuisance), and none of them any other level.
+    """
+    return level_config(config, level).domain.robot == config.domain.robot
+
+
 def reuse_run_table(run_dir: str | Path, config, level: float, detectors) -> xr.Dataset | None:
     """The run's own response table for ``level``, when the run already observed that level.
 
@@ -227,8 +241,7 @@ def reuse_run_table(run_dir: str | Path, config, level: float, detectors) -> xr.
     from scrppl.responses import load_response_table
 
     path = Path(run_dir) / "responses.nc"
-    # the held-out images depend on the robot nuisances only (the catalogue flag changes the train split)
-    if level_config(config, level).domain.robot != config.domain.robot or not path.exists():
+    if not run_observed_level(config, level) or not path.exists():
         return None
     table = load_response_table(path)
     families = list(detectors)
