@@ -20,15 +20,22 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.kway` -- beyond the paper: which of K categories, with all target detectors of a family;
 * :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib);
 * :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object;
-* :mod:`scrppl.exercises` -- feedback on the book's exercises (``check("7.1", answer)``).
+* :mod:`scrppl.exercises` -- feedback on the book's exercises (``check("7.1", answer)``);
+* :mod:`scrppl.numerics` -- portable numerics: the same bytes for a seed on every x86-64 machine with AVX2.
 """
 
 from __future__ import annotations
 
 import importlib
 
-from scrppl import views
-from scrppl.views import SAVARESE_GRID, ViewGrid, relative_azimuth
+# Before NumPy loads: the code an AVX2 machine runs, so that a seed gives the same bytes on every x86-64
+# machine (scrppl.numerics; SCRPPL_NATIVE_CPU=1 turns it off).
+from scrppl.numerics import apply_portable_settings as _portable
+
+_portable()
+
+from scrppl import views  # noqa: E402
+from scrppl.views import SAVARESE_GRID, ViewGrid, relative_azimuth  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -40,6 +47,7 @@ _SUBMODULES = (
     "extensions",
     "kway",
     "models",
+    "numerics",
     "planning",
     "plotting",
     "report",

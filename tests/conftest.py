@@ -4,6 +4,7 @@
 * Two host devices, so that code using ``chain_method="parallel"`` can be tested on 2-core machines.
   This must be set before JAX initialises, hence at import time here.
 * PRNG keys are fixed (``key`` fixture); no test draws a seed at run time.
+* Portable numerics (:mod:`scrppl.numerics`): ``import scrppl`` comes before NumPy and JAX.
 * Warnings are errors (``filterwarnings = error`` in pyproject.toml); narrow exceptions are listed
   there with a comment.
 """
@@ -13,6 +14,12 @@ import os
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The portable numerics of every scrppl process (scrppl.numerics), before NumPy loads: the suite then
+# computes the same bytes on every x86-64 machine with AVX2.
+from scrppl.numerics import apply_portable_settings  # noqa: E402, I001
+
+apply_portable_settings()
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

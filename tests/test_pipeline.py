@@ -1,6 +1,7 @@
 """The reproduction pipeline as a library (:mod:`scrppl.pipeline`): running stages, reading failures."""
 
 import json
+from pathlib import Path
 
 from scrppl.pipeline import Stage, failed_fits, run_stages
 
@@ -68,3 +69,26 @@ def test_failed_fits_names_a_corrupt_diagnostics_file(tmp_path):
     with pytest.raises(CorruptFileError, match="scrppl fit --force") as err:
         failed_fits(path)
     assert str(path) in str(err.value) and "MCMC diagnostics" in str(err.value)
+
+
+def test_reproduce_reruns_every_stage_of_a_folder_made_with_other_settings(tmp_path, monkeypatch):
+    """A run folder written with another seed (or profile, preset, numerics) is not up to date, however
+    new its files are: reproduce forces every stage and says why."""
+    import scrppl.cli.reproduce as rep
+    from scrppl.cli import main
+
+    calls = []
+
+    def fake_run_stages(pipeline, run_command, *, force=False, **kw):
+        calls.append(force)
+        return 0, {}
+
+    monkeypatch.setattr(rep, "run_stages", fake_run_stages)
+    monkeypatch.setattr("scrppl.report.write_report", lambda out, **kw: Path(out) / "report.md")
+    out = tmp_path / "out"
+    base = ["reproduce", "--profile", "quick", "--root", str(tmp_path / "data"), "--out", str(out)]
+    assert main([*base, "--seed", "0"]) == 0
+    assert main([*base, "--seed", "0"]) == 0  # same settings: stages decide by their files
+    assert main([*base, "--seed", "1"]) == 0  # another seed in the same folder
+    assert calls == [False, False, True]
+    assert json.loads((out / "run.json").read_text())["seed"] == 1

@@ -63,15 +63,19 @@ def dataset_root(args: argparse.Namespace) -> Path:
 
     ``<cache>/synthetic-<profile>-seed<seed>`` for the clean preset (the folder name datasets had before
     presets existed), ``<cache>/synthetic-<profile>-<preset>-seed<seed>`` for the others, so datasets of
-    different presets never share a folder.
+    different presets never share a folder. Images rendered with this CPU's own code instead of the
+    portable numerics (``SCRPPL_NATIVE_CPU=1``, :mod:`scrppl.numerics`) may differ in a few grey levels,
+    so they get a folder of their own, ``...-seed<seed>-native``.
     """
     if args.root is not None:
         return Path(args.root)
     from scrppl._io import default_cache_dir
+    from scrppl.numerics import mode
 
     preset = preset_of(args)
     name = args.profile if preset == "clean" else f"{args.profile}-{preset}"
-    return default_cache_dir() / f"synthetic-{name}-seed{args.seed}"
+    native = "" if mode() == "portable" else "-native"
+    return default_cache_dir() / f"synthetic-{name}-seed{args.seed}{native}"
 
 
 def add_errors_option(parser: argparse.ArgumentParser) -> None:

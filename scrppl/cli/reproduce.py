@@ -85,12 +85,28 @@ def _stage_scheduler(args: argparse.Namespace):
 
 def _run(args: argparse.Namespace) -> int:
     from scrppl.cli import main
+    from scrppl.numerics import mode
     from scrppl.report import write_report
-    from scrppl.results import write_run_info
+    from scrppl.results import run_settings_changed, write_run_info
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     existing = uses_existing_dataset(dataset_root(args))
+    # outputs made with other settings are not up to date, however new they are
+    changed = run_settings_changed(
+        out,
+        profile=args.profile,
+        seed=args.seed,
+        preset=None if existing else preset_of(args),
+        dataset_root=str(Path(dataset_root(args)).resolve()),
+        numerics=mode(),
+    )
+    if changed and not args.force:
+        print(
+            f"[reproduce] {out} holds a run with another {', '.join(changed)}: every stage reruns",
+            flush=True,
+        )
+        args.force = True
     write_run_info(
         out,
         profile=args.profile,
