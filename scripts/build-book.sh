@@ -20,9 +20,13 @@ if [ -n "${SCRPPL_RESULTS:-}" ]; then
   [ -f "$results/run.json" ] || { echo "[book] $results has no run.json: not a run folder of scrppl reproduce" >&2; exit 1; }
   echo "[book] results: $results (from \$SCRPPL_RESULTS; e.g. a full run's results/)"
 else
-  # The chapters' asserted claims are checked against this profile: the build is the same everywhere.
+  # The chapters' asserted claims hold for every seed (benchmarks/results/book-claims.json): the book profile
+  # of seed 0 lives in results-book/, another seed's in results-book-seed<k>/, a run with this CPU's own
+  # code (SCRPPL_NATIVE_CPU=1, make book CPU=native) in ...-native/.
   results=results-book
-  echo "[book] results: the book profile in $results/ (scrppl reproduce --profile book; current stages are skipped)"
+  [ "$SEED" != 0 ] && results=$results-seed$SEED
+  [ "${SCRPPL_NATIVE_CPU:-0}" != 0 ] && results=$results-native
+  echo "[book] results: the book profile in $results/ (scrppl reproduce --profile book --seed $SEED; current stages are skipped)"
   $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
 fi
 t_results=$(date +%s)
@@ -39,6 +43,9 @@ fi
 # JAX on the 2-core CI machines: no accelerators, quiet.
 # Notebooks execute in their own folders: hand them an absolute path.
 export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
+# The kernels import NumPy before scrppl: hand them the portable numerics of the scrppl commands
+# (scrppl.numerics; nothing with SCRPPL_NATIVE_CPU=1).
+eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
 # No MPLBACKEND: Jupyter kernels then use the inline backend and show the figures a cell draws.
 unset MPLBACKEND
 rm -rf book/_build/html book/_build/jupyter_execute book/_build/.doctrees
