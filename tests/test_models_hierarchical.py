@@ -13,10 +13,14 @@ from scrppl.models.data import extract_view_data, make_view_data
 from scrppl.models.diagnostics import DiagnosticsWarning
 from scrppl.models.fit import fit_hierarchical
 from scrppl.models.hierarchical import (
+    LOW_NOISE_RATIO,
+    RELATIVE_NOISE_FLOOR,
     choose_noncentered,
+    choose_target_accept,
     fourier_basis,
     make_model,
     model_args,
+    noise_floor,
     prior_predictive,
     sum_to_zero_basis,
 )
@@ -257,6 +261,39 @@ def test_choose_noncentered_per_class():
         make_model(True, ("coef[2]",))
 
 
+def test_noise_floor_is_the_larger_of_rounding_and_a_fraction_of_the_spread(rng):
+    o = np.r_[np.ones(3, int), np.zeros(6, int)]
+    y = rng.normal(0.0, 0.4, size=(9, 8, 1, 1))
+    data = make_view_data(y, o)
+    sd = float(y.std())
+    # a real-valued score: 5 % of the responses' sd
+    assert noise_floor(data, "identity") == pytest.approx(RELATIVE_NOISE_FLOOR * sd)
+    # counts: the rounding floor, larger than 5 % of a spread of 0.4
+    assert noise_floor(data, "anscombe") == transforms.resolution_sd("anscombe")
+    big = make_view_data(y * 100.0, o)
+    assert noise_floor(big, "anscombe") == pytest.approx(RELATIVE_NOISE_FLOOR * sd * 100.0)
+
+
+def test_a_nearly_noiseless_cell_starts_the_fit_at_the_higher_acceptance_target(rng):
+    o = np.r_[np.ones(3, int), np.zeros(6, int)]
+    y = rng.normal(0.0, 1.0, size=(9, 8, 1, 1))
+    noisy = make_view_data(y, o)
+    assert choose_target_accept(noisy, 0.0, 0.95, 0.99) == 0.95
+    quiet = y.copy()
+    quiet[o == 1, 3] = 0.2 + 1e-3 * rng.normal(size=(3, 1, 1))  # one positive cell nearly constant
+    data = make_view_data(quiet, o)
+    assert choose_target_accept(data, 0.0, 0.95, 0.99) == 0.99
+    # a floor as large as the threshold makes even that cell noisy enough
+    overall = float(quiet.std())
+    assert choose_target_accept(data, LOW_NOISE_RATIO * overall * 1.01, 0.95, 0.99) == 0.95
+    # a cell with one response has no spread to measure: it does not count
+    one = y.copy()
+    observed = np.ones(y.shape, bool)
+    observed[o == 1, 3] = False
+    observed[np.flatnonzero(o == 1)[0], 3] = True
+    assert choose_target_accept(make_view_data(one, o, observed=observed), 0.0, 0.95, 0.99) == 0.95
+
+
 def test_partial_noncentring_keeps_the_prior(key):
     from numpyro.infer import Predictive
 
@@ -357,3 +394,18 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     assert sorted(thin) == sorted(fit_module.RETRY_NONCENTERED)
     fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
     assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
+    # a nearly noiseless cell: the first attempt already runs at the retry's target, and a failure goes
+    # on to the next remedy (here longer chains) instead of repeating 0.99
+    quiet = np.asarray(data.y).copy()
+    quiet[:3, 2] = 0.5 + 1e-4 * np.arange(3)[:, None, None]
+    quiet_data = make_view_data(quiet, [1, 1, 1, 0, 0, 0])
+    calls.clear(), lengths.clear()
+    n_bad[0] = 1
+    tree = fit_hierarchical(key, quiet_data, meta, config, noncentered=thin, progress=False)
+    assert calls == [fit_module.RETRY_ACCEPT, fit_module.RETRY_ACCEPT]
+    assert lengths == [(10, 500), (10 * k, 500 * k)]
+    assert json.loads(tree.attrs["meta"])["attempts"][0]["target_accept_prob"] == 0.99
+    calls.clear()
+    n_bad[0] = 0
+    fit_hierarchical(key, quiet_data, meta, config, choose_accept=False, progress=False)
+    assert calls == [config.target_accept_prob]

@@ -15,15 +15,16 @@ import jax
 import numpy as np
 import xarray as xr
 
-from scrppl.models import transforms
 from scrppl.models.data import CLASS_NAMES, ViewData
 from scrppl.models.diagnostics import diagnose, warn_if_failed
 from scrppl.models.hierarchical import (
     DEFAULT_NONCENTERED,
     FREE_PARAMETERS,
     choose_noncentered,
+    choose_target_accept,
     make_model,
     model_args,
+    noise_floor,
     standardisation,
 )
 from scrppl.models.io import MODEL_VERSION
@@ -80,7 +81,7 @@ def _prepare(data: ViewData, meta: dict, marginal: bool, noncentered):
             raise ValueError(f"meta is missing {field!r}")
     noncentered = choose_noncentered(data) if noncentered is None else tuple(noncentered)
     loc, scale = standardisation(data)
-    floor = transforms.resolution_sd(str(meta["transform"]))
+    floor = noise_floor(data, str(meta["transform"]))
     model = make_model(marginal, noncentered)
     record = {k: v for k, v in meta.items() if k not in ("instance_category", "instance_index")}
     record.update(
@@ -140,6 +141,7 @@ def fit_hierarchical(
     noncentered: tuple[str, ...] | None = None,
     retry_accept: float | None = RETRY_ACCEPT,
     retry_longer: int | None = RETRY_LONGER,
+    choose_accept: bool = True,
     progress: bool = True,
     warn: bool = True,
 ) -> xr.DataTree:
@@ -176,6 +178,10 @@ def fit_hierarchical(
     retry_longer
         Length factor of the last attempt (default :data:`RETRY_LONGER`); ``None`` or 1: no such
         attempt. With ``retry_accept=None`` there is no retry at all.
+    choose_accept
+        Start a fit whose quietest cell is nearly noiseless at ``retry_accept`` instead of ``config``'s
+        target (:func:`~scrppl.models.hierarchical.choose_target_accept`), saving the attempt that would
+        fail; the attempt records the target it ran at.
     progress
         Show a progress bar.
     warn
@@ -191,6 +197,13 @@ def fit_hierarchical(
     """
     model, args, record = _prepare(data, meta, marginal, noncentered)
     label = f"{meta['detector']}/{meta['target']}"
+    if choose_accept and retry_accept is not None and config.target_accept_prob < retry_accept:
+        # nearly noiseless cells: start where the first retry would go
+        config = config._replace(
+            target_accept_prob=choose_target_accept(
+                data, record["noise_floor"], config.target_accept_prob, retry_accept
+            )
+        )
     attempts = []
     switched = False
     while True:
