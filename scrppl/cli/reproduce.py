@@ -71,13 +71,12 @@ def _stage_scheduler(args: argparse.Namespace):
     if scheduler != "local":
         yield scheduler
         return
-    import os
 
     from scrppl.cli.fit import N_CHAINS, _configure_host_devices
     from scrppl.parallel import local_cluster
 
     # the workers keep the JAX settings of the fit stage (host devices for the chains) for every stage
-    _configure_host_devices(max(1, min(N_CHAINS, os.cpu_count() or 1)))
+    _configure_host_devices(N_CHAINS)  # one per chain on every machine (scrppl.cli.fit)
     with local_cluster(args.workers) as cluster:
         print(f"[reproduce] Dask cluster: {cluster.scheduler_address}", flush=True)
         yield cluster.scheduler_address

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 from scrppl.cli._common import add_common, dataset_root, preset_of, progress_log
@@ -140,7 +139,7 @@ def handler(args: argparse.Namespace) -> int:
     settings = dict(PROFILE_SETTINGS[args.profile])
     import numpyro
 
-    numpyro.set_host_device_count(max(1, min(settings["chains"], os.cpu_count() or 1)))
+    numpyro.set_host_device_count(settings["chains"])  # one per chain on every machine (scrppl.cli.fit)
     import matplotlib
 
     matplotlib.use("Agg")
