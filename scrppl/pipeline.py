@@ -230,6 +230,7 @@ def run_stages(
     *,
     force: bool = False,
     log: Callable[[str], None] = lambda msg: print(msg, flush=True),
+    cpu_seconds: dict[str, float] | None = None,
 ) -> tuple[int, dict[str, float | str]]:
     """Run every stage that is not current, in order, stopping at the first failing command.
 
@@ -246,6 +247,10 @@ def run_stages(
         Rerun current stages, passing ``--force`` to the commands that take it.
     log
         Where progress lines go; a failing command is reported on ``sys.stderr``.
+    cpu_seconds
+        If given, filled with the CPU seconds (user + system) of each stage that ran: this process's and
+        those of its child processes that ended during the stage (the spawned pools of rendering,
+        training and scoring, a local Dask cluster's workers): :func:`cpu_time`.
 
     Returns
     -------
@@ -266,6 +271,7 @@ def run_stages(
             continue
         log(f"[reproduce] {stage.name}: running")
         t0 = time.perf_counter()
+        c0 = cpu_time()
         for argv in stage.argv:
             status = run_command(list(argv) + (["--force"] if force and stage.takes_force else []))
             if status:
@@ -275,8 +281,36 @@ def run_stages(
                 )
                 return status, timings
         timings[stage.name] = round(time.perf_counter() - t0, 1)
-        log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s")
+        cpu = round(cpu_time() - c0, 1)
+        if cpu_seconds is not None:
+            cpu_seconds[stage.name] = cpu
+        log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s ({cpu} CPU-seconds)")
     return 0, timings
+
+
+def cpu_time() -> float:
+    """CPU seconds (user + system) of this process and of its ended, waited-for child processes."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def machine_description() -> dict:
+    """The core count and a short description of the CPU (for timing records)."""
+    import os
+    import platform
+
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cores": os.cpu_count(), "cpu": model, "machine": platform.machine()}
 
 
 def failed_fits(path: str | Path) -> list[str]:

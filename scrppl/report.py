@@ -179,11 +179,38 @@ def _section_timings(out: Path) -> str:
     t, msg = _load_json(out, "timings.json", title)
     if msg:
         return msg
-    rows = [{"stage": k, "seconds": _num(v, 1)} for k, v in t.items()]
-    total = sum(float(v) for v in t.values() if isinstance(v, int | float))
-    rows.append({"stage": "**total**", "seconds": _num(total, 1)})
-    return f"## {title}\n\nWall time of each stage (s), from `timings.json`:\n\n" + _md_table(
-        rows, ["stage", "seconds"]
+    cpu = t.get("cpu_seconds") or {}
+    machine = t.get("machine") or {}
+    stages = {k: v for k, v in t.items() if k not in ("cpu_seconds", "machine")}
+    rows = []
+    for k, v in stages.items():
+        c = cpu.get(k)
+        ratio = c / v if isinstance(v, int | float) and v > 0 and c is not None else None
+        rows.append(
+            {
+                "stage": k,
+                "wall s": _num(v, 1),
+                "CPU s": _num(c, 1) if c is not None else "",
+                "CPU / wall": _num(ratio, 2) if ratio is not None else "",
+            }
+        )
+    total = sum(float(v) for v in stages.values() if isinstance(v, int | float))
+    total_cpu = sum(float(v) for v in cpu.values())
+    rows.append(
+        {
+            "stage": "**total**",
+            "wall s": _num(total, 1),
+            "CPU s": _num(total_cpu, 1) if cpu else "",
+            "CPU / wall": _num(total_cpu / total, 2) if cpu and total > 0 else "",
+        }
+    )
+    where = (
+        f" on {machine.get('cores')} cores ({machine.get('cpu')})" if machine.get("cores") else ""
+    )
+    cols = ["stage", "wall s", "CPU s", "CPU / wall"] if cpu else ["stage", "wall s"]
+    return (
+        f"## {title}\n\nWall time and CPU time (user + system, this process and its worker "
+        f"processes) of each stage{where}, from `timings.json`:\n\n" + _md_table(rows, cols)
     )
 
 

@@ -209,6 +209,22 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     assert "| car | gaussian+naive_bayes | 0.975 / 0.975 | 1.000 / 0.980 |" in text
     assert "--profile quick --seed 1" in text and "0 of 1 fits pass" in text
     assert "```json" not in text  # no JSON dumps
+    # with CPU seconds (timings.json of scrppl reproduce): a CPU column and the ratio, and the machine
+    out = tmp_path
+    (out / "timings.json").write_text(
+        json.dumps(
+            {
+                "detect": 70.0,
+                "fit": 30.0,
+                "cpu_seconds": {"detect": 126.0, "fit": 33.0},
+                "machine": {"cores": 2, "cpu": "Test CPU"},
+            }
+        )
+    )
+    text = write_report(out, profile="quick", seed=1).read_text()
+    assert "| detect | 70.0 | 126.0 | 1.80 |" in text
+    assert "| **total** | 100.0 | 159.0 | 1.59 |" in text and "on 2 cores (Test CPU)" in text
+
 
 
 def test_report_heldout_is_one_row_per_detector_and_target(tmp_path):

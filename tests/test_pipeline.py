@@ -24,8 +24,12 @@ def test_run_stages_skips_current_and_unavailable_stages_and_stops_at_a_failure(
     assert timings == {"current": "up to date", "missing": "not available"}
     assert any("current: up to date" in line for line in lines)
     calls.clear()
-    status, timings = run_stages([current], run_command, force=True, log=lines.append)
+    cpu = {}
+    status, timings = run_stages(
+        [current], run_command, force=True, log=lines.append, cpu_seconds=cpu
+    )
     assert status == 0 and calls == [["a", "--force"]] and isinstance(timings["current"], float)
+    assert set(cpu) == {"current"} and cpu["current"] >= 0.0
 
 
 def test_failed_fits_reads_diagnostics(tmp_path):
@@ -92,3 +96,15 @@ def test_reproduce_reruns_every_stage_of_a_folder_made_with_other_settings(tmp_p
     assert main([*base, "--seed", "1"]) == 0  # another seed in the same folder
     assert calls == [False, False, True]
     assert json.loads((out / "run.json").read_text())["seed"] == 1
+
+
+def test_cpu_time_counts_this_process_and_its_ended_children():
+    """A stage's CPU seconds include its worker processes: a child that burns CPU and ends is counted."""
+    import subprocess
+    import sys
+
+    from scrppl.pipeline import cpu_time
+
+    t0 = cpu_time()
+    subprocess.run([sys.executable, "-c", "x = 0\nfor i in range(3_000_000): x += i"], check=True)
+    assert cpu_time() - t0 > 0.05

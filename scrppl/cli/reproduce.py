@@ -118,11 +118,18 @@ def _run(args: argparse.Namespace) -> int:
             f"[reproduce] dataset: using the dataset at {dataset_root(args)} (not generating one)",
             flush=True,
         )
+    cpu: dict[str, float] = {}
     with _stage_scheduler(args) as scheduler:
-        status, timings = run_stages(stages(args, scheduler), main, force=args.force)
+        status, timings = run_stages(
+            stages(args, scheduler), main, force=args.force, cpu_seconds=cpu
+        )
     if status:
         return status
-    (out / "timings.json").write_text(json.dumps(timings, indent=2))
+    from scrppl.pipeline import machine_description
+
+    # wall seconds per stage (or why it did not run) at the top level, as before; CPU seconds beside them
+    record = dict(timings, cpu_seconds=cpu, machine=machine_description())
+    (out / "timings.json").write_text(json.dumps(record, indent=2))
     path = write_report(
         out,
         dataset_root=dataset_root(args),
