@@ -52,7 +52,7 @@ PORTABLE_ENV: dict[str, str] = {
     # NumPy's dispatch targets above X86_V3 in the locked NumPy (numpy._core._multiarray_umath.__cpu_dispatch__)
     "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
     "OPENBLAS_CORETYPE": "Haswell",
-    "OPENCV_CPU_DISABLE": "AVX512_SKX,AVX512_COMMON,AVX512_ICL,AVX512_CLX,AVX512_CNL",
+    "OPENCV_CPU_DISABLE": "AVX512-SKX",  # the AVX-512 dispatch target of the locked OpenCV (cv2.getCPUFeaturesLine())
     "LP_NATIVE_VECTOR_WIDTH": "256",
 }
 #: Appended to ``XLA_FLAGS`` (unless it already names a maximum ISA).
