@@ -174,7 +174,7 @@ _AP_MISTAKES = [
     ),
     Mistake(
         "this is the *interpolated* AP (precision replaced by the best precision at any higher "
-        "recall, as in PASCAL VOC); the library's AP is not interpolated: sum_n (R_n - R_(n-1)) P_n.",
+        "recall, as in PASCAL VOC); the library's AP is not interpolated: sum_r (Rec_r - Rec_(r-1)) Prec_r.",
         _ap_interpolated,
     ),
     Mistake(
@@ -204,8 +204,8 @@ def check_3_2(ap) -> str:
         name="ap(scores, labels)",
         rtol=1e-6,
         mistakes=_AP_MISTAKES,
-        hint="rank by decreasing score; at each distinct score take recall R_n and precision P_n "
-        "of everything scored at least that high; AP = sum_n (R_n - R_(n-1)) P_n.",
+        hint="rank by decreasing score; at each distinct score take recall Rec_r and precision Prec_r "
+        "of everything scored at least that high; AP = sum_r (Rec_r - Rec_(r-1)) Prec_r.",
         convert=lambda x: float(np.asarray(x)),
     )
     return f"agrees with scrppl.detectors.evaluation.average_precision on {n} rankings"
@@ -258,7 +258,7 @@ _DEP_MISTAKES = [
     ),
     Mistake(
         "pool the within-azimuth variance: sum of all squared residuals / sum over azimuths of "
-        "(n_a - 1), then the square root; not the mean of the per-azimuth sds.",
+        "(n_oa - 1), then the square root; not the mean of the per-azimuth sds.",
         _dep_mean_sd,
     ),
 ]
@@ -284,9 +284,9 @@ def check_3_3(dependence) -> str:
         name="dependence(table, detector, target, o)",
         rtol=1e-6,
         mistakes=_DEP_MISTAKES,
-        hint="group the responses of class o by azimuth a; with m_a the mean at azimuth a and s_w the "
-        "pooled within-azimuth sd (sum of squared residuals / sum of (n_a - 1)), the statistic is "
-        "std(m_a, ddof=1) / s_w; NaN responses are left out.",
+        hint="group the responses of class o by azimuth a; with fbar_oa the mean at azimuth a and "
+        "sigma^w_o the pooled within-azimuth sd (sum of squared residuals / sum of (n_oa - 1)), the "
+        "statistic is Delta_o = std over a of fbar_oa (ddof=1) / sigma^w_o; NaN responses are left out.",
         convert=lambda x: float(np.asarray(x)),
     )
     return f"agrees with scrppl.detectors.evaluation.azimuth_dependence on {n} inputs"
