@@ -200,7 +200,7 @@ def _log_prior(prior, shape) -> jax.Array:
 def view_parameters(model: ResponseModel, phi, e, s) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Per-draw model parameters for every state ``(o, theta)`` seen from robot view ``(phi, e, s)``.
 
-    The detector sees relative azimuth ``a = (phi - theta) mod A`` (Meger et al. 2010, Sec. III-B).
+    The detector sees relative azimuth ``a = (phi - theta) mod A`` (:mod:`scrppl.views`).
 
     Parameters
     ----------

@@ -6,7 +6,8 @@ Conventions (used everywhere in scrppl)
   ``360 / A`` degrees (45 degrees in the Savarese layout, ``A = 8``).
 * The object has an unknown pose ``theta`` in ``0 .. A-1`` (its rotation about the vertical axis, in bins).
   The robot knows its own azimuth ``phi``. The detector sees the *relative* azimuth
-  ``a = (phi - theta) mod A`` (Meger et al. 2010, Sec. III-B).
+  ``a = (phi - theta) mod A`` (scrppl's convention; the paper writes the likelihood p(f | o, theta) of a
+  view and leaves the geometry implicit, Meger et al. 2010, Sec. III).
 * Elevations ``e = 0 .. E-1`` (Savarese's heights H1..H3) and scales ``s = 0 .. S-1`` (S1..S3, near to
   far) are known to the robot and index the grid directly.
 * A view is the triple ``(a, e, s)``; its flat index is ``(a * E + e) * S + s`` (azimuth-major), the order
