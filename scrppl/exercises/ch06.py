@@ -141,7 +141,7 @@ _LP_MISTAKES = [
         _lp_mean_of_logs,
     ),
     Mistake(
-        "a new instance brings its own effect u ~ Normal(0, tau): each draw's normal has variance "
+        "a new instance brings its own effect u ~ Normal(0, tau^2): each draw's normal has variance "
         "sigma^2 + tau^2, not sigma^2.",
         _lp_without_tau,
     ),
@@ -250,8 +250,8 @@ def _sample_one_draw(rng, model, o, a, n):
 
 _SAMPLE_MISTAKES = [
     Mistake(
-        "the samples are too narrow: a new instance brings its own effect u ~ Normal(0, tau[n, o]) on "
-        "top of the noise sigma * eps.",
+        "the samples are too narrow: a new instance brings its own effect u ~ Normal(0, tau[n, o]^2) "
+        "on top of the noise sigma * eps.",
         _sample_without_tau,
     ),
     Mistake(
@@ -356,7 +356,7 @@ def check_6_2(sample_predictive) -> str:
                 hint = (
                     "your samples vary less than the predictive. Every sample is a new instance: "
                     "it needs its own posterior draw n, its own instance effect u ~ Normal(0, "
-                    "tau[n, o]) and its own noise."
+                    "tau[n, o]^2) and its own noise."
                 )
             lines.append(
                 f"Hint: {hint}"
@@ -386,7 +386,7 @@ def _likely_mistake(x, seed, model, o, a) -> str | None:
 # -- the joint density of several views of one new instance (6.3, 6.4) ---------------------------
 @jax.jit
 def _joint_jit(model, f, o, a, observed):
-    """``log p(f[m, observed views] | o)`` for views ``a`` ``(K,)`` of new instances; ``f`` ``(M, K)``."""
+    """``log p(f[i, observed views] | o)`` for views ``a`` ``(k,)`` of new instances; ``f`` ``(I, k)``."""
     from scrppl.models.marginal import instance_log_marginal
 
     def per_draw(mu, sigma, tau):
@@ -399,7 +399,7 @@ def _joint_jit(model, f, o, a, observed):
 
 
 def _joint(model, f, o, a) -> np.ndarray:
-    """:func:`_joint_jit` for ``f`` ``(..., K)`` (float64 out, shape ``f.shape[:-1]``).
+    """:func:`_joint_jit` for ``f`` ``(..., k)`` (float64 out, shape ``f.shape[:-1]``).
 
     Rows and views are padded to ``(_PAD, _PAD)`` (padded views unobserved), so that each model
     compiles the reference once.
@@ -419,7 +419,7 @@ def _joint(model, f, o, a) -> np.ndarray:
 
 def _pair_ref(model, f_a, f_b, o, a, b):
     f = np.stack(np.broadcast_arrays(np.asarray(f_a, float), np.asarray(f_b, float)), axis=-1)
-    return _joint(model, f, o, np.array([a, b]))  # (K,)
+    return _joint(model, f, o, np.array([a, b]))  # one value per pair
 
 
 def _pair_cov(model, o, a, b, shared_power=2):
@@ -438,7 +438,7 @@ def _pair_per_draw(model, f_a, f_b, o, a, b, shared_power=2):
             stats.multivariate_normal(m, c).logpdf(f).reshape(f.shape[:-1])
             for m, c in zip(means, cov, strict=True)
         ]
-    )  # (N, K)
+    )  # (N, pairs)
 
 
 def _pair_reference_answer(model, f_a, f_b, o, a, b):
@@ -555,7 +555,7 @@ def _evidence_naive(model, f, a):
 
 
 def _lp_reference_answer_views(model, f, o, a):
-    """Sum over views of the single-view predictive log densities (f ``(..., K)``, a ``(K,)``)."""
+    """Sum over views of the single-view predictive log densities (f ``(..., k)``, a ``(k,)``)."""
     return sum(_lp_reference_answer(model, f[..., k], o, int(a[k])) for k in range(len(a)))
 
 
@@ -596,7 +596,7 @@ def _evidence_swapped(model, f, a):
 _EVIDENCE_MISTAKES = [
     Mistake(
         "this is the naive-Bayes sum of each view's log-likelihood ratio (the paper's eq. 3), which "
-        "treats the views as independent; use the joint density of all K views of one new instance, "
+        "treats the views as independent; use the joint density of all k views of one new instance, "
         "for each class, and take the difference.",
         _evidence_naive,
     ),
@@ -620,7 +620,7 @@ def _evidence_cases() -> list[Case]:
     m = _models()
     rng = np.random.default_rng(66)
     return [
-        Case((m["A"], np.array([1.2]), np.array([3])), "one view (K = 1), a = [3]"),
+        Case((m["A"], np.array([1.2]), np.array([3])), "one view (k = 1), a = [3]"),
         Case(
             (m["A"], rng.normal(0.8, 1.0, (5, 3)).round(3), np.array([0, 3, 5])),
             "5 objects x 3 views, a = [0, 3, 5]",
@@ -661,7 +661,7 @@ def check_6_4(evidence) -> str:
         rtol=1e-4,
         atol=2e-4,
         mistakes=_EVIDENCE_MISTAKES,
-        hint="for each class o and draw n the K responses are jointly normal with means "
+        hint="for each class o and draw n the k responses are jointly normal with means "
         "mu[n, o, a_k], covariance diag(sigma[n, o, a_k]^2) + tau[n, o]^2 (all entries); mix each "
         "class's densities over the draws, then subtract the logs (present minus absent).",
         convert=lambda x: np.asarray(x, np.float64),
