@@ -76,7 +76,7 @@ def check_calls(source: str) -> list[tuple[str, list[str]]]:
 
 def test_there_are_exercise_notebooks_for_chapters_2_to_4():
     stems = {p.stem[:2] for p in NOTEBOOKS}
-    assert {"02", "03", "04", "05", "06", "07", "08", "09", "10"} <= stems
+    assert {"02", "03", "04", "05", "06", "07", "08", "09", "10", "11"} <= stems
     assert sum(len(list_exercises(int(s))) for s in stems) >= 12
 
 

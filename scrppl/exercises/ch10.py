@@ -1,8 +1,9 @@
-"""Checks for the exercises of chapter 10 (beyond the paper): fusion, detector choice and lookahead.
+"""Checks for the exercises of chapter 10 (several detectors and longer plans).
 
 Naive-Bayes fusion of several detectors, the choice of a (view, detector) pair under per-detector costs,
-and the two-step lookahead value of a first view. The references are :mod:`scrppl.extensions`; the inputs
-are small random viewpoint models (:class:`~scrppl.models.ResponseModel`) and beliefs after a few views.
+the two-step lookahead value of a first view, and the candidates and scores of the whole view sphere with
+a motion cost. The references are :mod:`scrppl.extensions` and :mod:`scrppl.planning`; the inputs are
+small random viewpoint models (:class:`~scrppl.models.ResponseModel`) and beliefs after a few views.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from scrppl.exercises._core import (
     require,
 )
 
-__all__ = ["check_10_1", "check_10_2", "check_10_3", "random_model"]
+__all__ = ["check_10_1", "check_10_2", "check_10_3", "check_10_4", "random_model"]
 
 
 class _LazyCases(Sequence):
@@ -305,9 +306,9 @@ def _choice_inputs():
     visited[1, 5, 1] = True  # detector 1 already ran at azimuth 5 (detector 0 may still run there)
     available = np.ones_like(visited)
     available[:, 0, 1] = False  # no image from azimuth 0 at this height
-    out.append(("two detectors after two views, costs (1, 2), lambda = 0.1", two, b2,
+    out.append(("two detectors after two views, costs (1, 2), beta = 0.1", two, b2,
                 [4, 1, 0], visited, available, [1.0, 2.0], 0.1))  # fmt: skip
-    out.append(("the same, with a large lambda = 2", two, b2, [4, 1, 0], visited, available,
+    out.append(("the same, with a large beta = 2", two, b2, [4, 1, 0], visited, available,
                 [1.0, 2.0], 2.0))  # fmt: skip
     return out
 
@@ -330,7 +331,7 @@ def _choice_first():
     det = _detectors()
     two = (det[0], det[2])
     visited = np.zeros((2, 6, 2, 1), bool)
-    label = "two detectors before any view, costs (3, 1), lambda = 0.05"
+    label = "two detectors before any view, costs (3, 1), beta = 0.05"
     return (label, two, fused_init("naive_bayes", two), [1, 0, 0], visited, ~visited,
             [3.0, 1.0], 0.05)  # fmt: skip
 
@@ -363,13 +364,13 @@ _SCORE_MISTAKES = [
         lambda models, belief, views, costs, lam: _entropies(models, belief, views),
     ),
     Mistake(
-        "weight the cost by cost_weight (lambda, nats per unit of cost).",
+        "weight the cost by cost_weight (beta, nats per unit of cost).",
         lambda models, belief, views, costs, lam: (
             _entropies(models, belief, views) + np.asarray(costs)[None]
         ),
     ),
     Mistake(
-        "a cost makes an action *worse*: add lambda * cost to the expected entropy (the planner "
+        "a cost makes an action *worse*: add beta * cost to the expected entropy (the planner "
         "minimises the score).",
         lambda models, belief, views, costs, lam: (
             _entropies(models, belief, views) - lam * np.asarray(costs)[None]
@@ -646,3 +647,155 @@ def check_10_3(lookahead_value) -> str:
         convert=lambda x: float(np.asarray(x)) if np.size(x) == 1 else x,
     )
     return f"agrees with scrppl.extensions.two_step_expected_entropies on {n} inputs"
+
+
+# -- 10.4 the whole view sphere ---------------------------------------------------------------------
+def _sphere_views_ref(visited, available):
+    from scrppl.planning import candidate_views
+
+    views, valid = candidate_views([0, 0, 0], visited, available, mode="all")
+    return np.asarray(views), np.asarray(valid)
+
+
+def _sphere_views_wrong(visited, available, *, how):
+    n_a, n_e, n_s = np.shape(visited)
+    order = ("e", "phi", "s") if how == "order" else ("phi", "e", "s")
+    sizes = {"phi": n_a, "e": n_e, "s": n_s}
+    grids = dict(
+        zip(order, np.meshgrid(*(np.arange(sizes[k]) for k in order), indexing="ij"), strict=True)
+    )
+    views = np.stack([grids[k].ravel() for k in ("phi", "e", "s")], axis=1)
+    seen = np.asarray(visited, bool)[views[:, 0], views[:, 1], views[:, 2]]
+    have = np.asarray(available, bool)[views[:, 0], views[:, 1], views[:, 2]]
+    if how == "ignore_visited":
+        return views, have
+    if how == "ignore_available":
+        return views, ~seen
+    return views, ~seen & have
+
+
+def _sphere_scores_ref(expected_entropy, views, current, valid, motion_cost, n_azimuth):
+    from scrppl.planning import select_view, travel_cost
+
+    cost = travel_cost(jnp.asarray(views), jnp.asarray(current), motion_cost, n_azimuth)
+    return np.asarray(
+        select_view(jnp.asarray(expected_entropy), cost, jnp.asarray(valid))[2], float
+    )
+
+
+def _sphere_scores_wrong(expected_entropy, views, current, valid, motion_cost, n_azimuth, *, how):
+    views, current = np.asarray(views), np.asarray(current)
+    h = np.asarray(expected_entropy, float)
+    d = np.abs(views[:, 0] - current[0])
+    if how != "linear":
+        d = np.minimum(d % n_azimuth, n_azimuth - d % n_azimuth)
+    if how == "all_axes":
+        d = d + np.abs(views[:, 1] - current[1]) + np.abs(views[:, 2] - current[2])
+    score = h + motion_cost * d
+    return score if how == "no_mask" else np.where(np.asarray(valid, bool), score, np.inf)
+
+
+_SPHERE_VIEW_MISTAKES = [
+    Mistake(
+        "the flat order is (phi * E + e) * S + s: azimuth slowest, then elevation, then scale "
+        "(np.meshgrid(..., indexing='ij') over (phi, e, s), then ravel).",
+        partial(_sphere_views_wrong, how="order"),
+    ),
+    Mistake(
+        "a view already seen may not be chosen again: valid = not visited and available.",
+        partial(_sphere_views_wrong, how="ignore_visited"),
+    ),
+    Mistake(
+        "a view without an image (available False) may not be chosen: valid = not visited and available.",
+        partial(_sphere_views_wrong, how="ignore_available"),
+    ),
+]
+
+_SPHERE_SCORE_MISTAKES = [
+    Mistake(
+        "the azimuth is a circle: the distance from phi to phi_v is min(|phi_v - phi|, A - |phi_v - phi|) "
+        "bins (sp.views.angular_distance).",
+        partial(_sphere_scores_wrong, how="linear"),
+    ),
+    Mistake(
+        "the motion cost counts azimuth bins only (scrppl.planning.travel_cost): changing height or "
+        "distance costs nothing here.",
+        partial(_sphere_scores_wrong, how="all_axes"),
+    ),
+    Mistake(
+        "a candidate that may not be chosen (valid False) gets the score inf.",
+        partial(_sphere_scores_wrong, how="no_mask"),
+    ),
+]
+
+
+def _sphere_view_cases() -> list[Case]:
+    rng = np.random.default_rng(104)
+    out = []
+    for shape, label in (((4, 2, 3), "A = 4, E = 2, S = 3, nothing seen yet"),
+                         ((6, 3, 2), "A = 6, E = 3, S = 2, some views seen, some without an image"),
+                         ((8, 1, 1), "A = 8, one ring: the paper's grid")):  # fmt: skip
+        visited = np.zeros(shape, bool) if "nothing" in label else rng.random(shape) < 0.3
+        available = np.ones(shape, bool) if "nothing" in label else rng.random(shape) > 0.2
+        out.append(Case((visited, available), label))
+    return out
+
+
+def _sphere_score_cases() -> list[Case]:
+    rng = np.random.default_rng(1041)
+    out = []
+    for shape, current, cost, label in (
+        ((8, 3, 3), [1, 0, 2], 0.1, "A = 8, E = S = 3, robot at (1, 0, 2), lambda = 0.1"),
+        ((8, 3, 3), [6, 2, 0], 0.05, "A = 8, robot at azimuth 6: the way round past 0 is shorter"),
+        ((6, 2, 3), [0, 1, 1], 0.0, "A = 6, no motion cost"),
+    ):
+        visited = rng.random(shape) < 0.2
+        visited[tuple(current)] = True
+        views, valid = _sphere_views_ref(visited, rng.random(shape) > 0.1)
+        h = rng.uniform(0.5, 1.5, len(views))
+        out.append(Case((h, views, np.asarray(current), valid, cost, shape[0]), label))
+    return out
+
+
+@exercise(
+    "10.4",
+    "The whole view sphere",
+    "medium",
+    reference=lambda: (_sphere_views_ref, _sphere_scores_ref),
+    wrong=lambda: [
+        (_SPHERE_VIEW_MISTAKES[0].fn, _sphere_scores_ref),
+        (_SPHERE_VIEW_MISTAKES[1].fn, _sphere_scores_ref),
+        (_sphere_views_ref, _SPHERE_SCORE_MISTAKES[0].fn),
+        (_sphere_views_ref, _SPHERE_SCORE_MISTAKES[1].fn),
+    ],
+)
+def check_10_4(sphere_views, sphere_scores) -> str:
+    """Check exercise 10.4.
+
+    Compares ``sphere_views(visited, available)`` with :func:`scrppl.planning.candidate_views`
+    (``mode="all"``), and ``sphere_scores(expected_entropy, views, current, valid, motion_cost,
+    n_azimuth)`` with the scores of :func:`scrppl.planning.select_view` plus
+    :func:`scrppl.planning.travel_cost`.
+    """
+    n = check_function(
+        sphere_views,
+        _sphere_views_ref,
+        _sphere_view_cases(),
+        name="sphere_views(visited, available)",
+        mistakes=_SPHERE_VIEW_MISTAKES,
+        hint="views: every (phi, e, s) with phi slowest and s fastest; valid: not visited and available.",
+        convert=lambda x: tuple(x) if isinstance(x, list | tuple) else x,
+    )
+    m = check_function(
+        sphere_scores,
+        _sphere_scores_ref,
+        _sphere_score_cases(),
+        name="sphere_scores(expected_entropy, views, current, valid, motion_cost, n_azimuth)",
+        rtol=1e-5,
+        atol=1e-6,
+        mistakes=_SPHERE_SCORE_MISTAKES,
+        hint="score = expected entropy + motion_cost * angular distance in azimuth bins; inf if invalid.",
+    )
+    return (
+        f"agrees with scrppl.planning (candidate_views, travel_cost, select_view) on {n + m} inputs"
+    )
