@@ -1,9 +1,11 @@
 """Checks for the exercises of chapter 8 (planning where to look).
 
 The entropy of the belief after a hypothetical response and the plug-in shortcut, the expected posterior
-entropy of a candidate view (the paper's eq. 5) by sampling and by Gauss-Hermite quadrature, and a
-planner that trades expected entropy against travel. Every reference is :mod:`scrppl.planning`; the
-planners see the filter only through its predictive mixture (:func:`scrppl.belief.predictive_mixture`).
+entropy of a candidate view (the paper's eq. 5) by sampling and by Gauss-Hermite quadrature, the price
+per bin at which a planner that pays for travel leaves its favourite view, and the information gain of a
+view. Every reference is :mod:`scrppl.planning`, except that of 8.4, a closed form the library lacks,
+checked against the library's decision rule (:func:`scrppl.planning.select_view`); the planners see the
+filter only through its predictive mixture (:func:`scrppl.belief.predictive_mixture`).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ __all__ = [
     "check_8_2",
     "check_8_3",
     "check_8_4",
+    "check_8_5",
     "mixture_cases",
     "entropy_after_ref",
 ]
@@ -241,12 +244,12 @@ _ENTROPY_MISTAKES = [
 ]
 _PLUG_IN_MISTAKES = [
     Mistake(
-        "the expected response is the *weighted* mean sum_k w_k mean_k (w = exp(log_weight)), not the "
+        "the expected response is the *weighted* mean sum_j w_j mean_j (w = exp(log_weight)), not the "
         "plain mean of the component means.",
         lambda mix: _plug_in_np(mix, "unweighted"),
     ),
     Mistake(
-        "the plug-in shortcut updates once, with the expected response f_bar = sum_k w_k mean_k; the "
+        "the plug-in shortcut updates once, with the expected response f_bar = sum_j w_j mean_j; the "
         "average of the entropies at each component's mean is another (also biased) estimator.",
         lambda mix: _plug_in_np(mix, "at_means"),
     ),
@@ -539,194 +542,299 @@ def check_8_3(expected_entropy_quadrature) -> str:
     return f"agrees with scrppl.planning.quadrature_expected_entropy on {n} mixtures"
 
 
-# -- 8.4 a planner that pays for travel -------------------------------------------------------------
-def _choose(model, belief, current, visited, available, motion_cost):
-    """:func:`scrppl.planning.choose_view` (quadrature planner, joint objective): view and scores."""
-    from scrppl.planning import PlannerConfig, choose_view
-
-    view, _, scores = choose_view(
-        None,
-        model,
-        belief,
-        jnp.asarray(current),
-        jnp.asarray(visited),
-        jnp.asarray(available),
-        PlannerConfig("quadrature", motion_cost=float(motion_cost)),
-    )
-    return tuple(int(x) for x in np.asarray(view)), np.asarray(scores, float)
-
-
-def _scores_ref(model, belief, current, visited, available, motion_cost):
-    """The scores of :func:`scrppl.planning.choose_view` for every robot azimuth (``inf``: invalid)."""
-    return _choose(model, belief, current, visited, available, motion_cost)[1]
-
-
-def _plan_ref(model, belief, current, visited, available, motion_cost):
-    """The view :func:`scrppl.planning.choose_view` chooses (quadrature planner, joint objective)."""
-    return _choose(model, belief, current, visited, available, motion_cost)[0]
-
-
-def _expected_entropies(model, belief, current) -> np.ndarray:
-    """Quadrature expected entropies of every robot azimuth at the current elevation and scale.
-
-    The scores of :func:`scrppl.planning.choose_view` with nothing visited and no motion cost.
-    """
-    everywhere = np.ones(model.mu.shape[2:5], bool)
-    return _scores_ref(model, belief, current, ~everywhere, everywhere, 0.0)
-
-
-@functools.lru_cache(maxsize=8)
-def _entropies_at(i: int) -> np.ndarray:
-    """:func:`_expected_entropies` of planner case ``i`` (no mask, no motion cost)."""
-    model, belief, current, _, _, _ = _plan_cases()[i].args
-    return _expected_entropies(model, belief, current)
-
-
-def _plan_variant(i, how=""):
-    """A planner that makes one of the natural mistakes, on planner case ``i``."""
-    model, belief, current, visited, available, cost = _plan_cases()[i].args
-    n_a = model.mu.shape[2]
-    phi0, e, s = current
-    phi = np.arange(n_a)
-    d = (
-        np.abs(phi - phi0)
-        if how == "linear"
-        else np.minimum((phi - phi0) % n_a, (phi0 - phi) % n_a)
-    )
+# -- 8.4 the price of a detour ----------------------------------------------------------------------
+def _nearer_ratios(h, azimuths, current, valid, n_azimuth, how=""):
+    """``(H_c - H_0) / (d_0 - d_c)`` of the candidates that can take over from the free choice ``0``."""
+    h = np.asarray(h, float)
+    phi = np.asarray(azimuths, int)
+    ok = np.ones(h.shape, bool) if how == "invalid" else np.asarray(valid, bool)
+    if how == "linear":
+        d = np.abs(phi - int(current)).astype(float)
+    else:
+        d = np.minimum((phi - int(current)) % n_azimuth, (int(current) - phi) % n_azimuth).astype(
+            float
+        )
     if how == "degrees":
-        d = d * 360.0 / n_a
-    score = _entropies_at(i) + (0.0 if how == "no_cost" else cost) * d
-    ok = np.ones(n_a, bool)
-    if how != "visited":
-        ok &= ~np.asarray(visited)[:, e, s]
-    if how != "available":
-        ok &= np.asarray(available)[:, e, s]
-    return (int(np.argmin(np.where(ok, score, np.inf))), int(e), int(s))
+        d = d * 360.0 / n_azimuth
+    free = int(np.argmin(np.where(ok, h, np.inf)))
+    rivals = ok & (d != d[free]) if how == "all" else ok & (d < d[free])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (h[rivals] - h[free]) / (d[free] - d[rivals])
+
+
+def _switch_cost_formula(h, azimuths, current, valid, n_azimuth=8, how=""):
+    r = _nearer_ratios(h, azimuths, current, valid, n_azimuth, how)
+    if r.size == 0:
+        return math.inf
+    return float(r.max() if how == "max" else r.min())
+
+
+def _switch_cost_ref(expected_entropy, azimuths, current, valid, n_azimuth=8):
+    """The smallest price per bin above which the planner leaves its free choice (``inf``: never).
+
+    The library has no such function; this is the closed form of the exercise, checked here against
+    the library's decision rule: :func:`scrppl.planning.select_view` with
+    :func:`scrppl.planning.travel_cost` keeps the free choice just below the returned price and leaves
+    it just above.
+    """
+    from scrppl.planning import select_view, travel_cost
+
+    lam = _switch_cost_formula(expected_entropy, azimuths, current, valid, n_azimuth)
+    h = jnp.asarray(expected_entropy, jnp.float32)
+    zeros = np.zeros(len(azimuths), np.int32)
+    views = np.stack([np.asarray(azimuths, np.int32), zeros, zeros], axis=1)  # (C, 3)
+    now = np.array([int(current), 0, 0], np.int32)
+
+    def choice(price):
+        return int(select_view(h, travel_cost(views, now, price, n_azimuth), valid)[0])
+
+    free = choice(0.0)
+    below = choice(0.999 * lam) if math.isfinite(lam) else choice(1e6)
+    if below != free or (math.isfinite(lam) and choice(1.001 * lam + 1e-6) == free):
+        raise AssertionError(f"the closed form of exercise 8.4 disagrees with select_view at {lam}")
+    return lam
 
 
 @functools.lru_cache(maxsize=1)
-def _plan_case_list() -> tuple:
-    rng = np.random.default_rng(84)
+def _switch_cases() -> tuple[Case, ...]:
+    """Inputs of exercise 8.4: library expected entropies and hand-made ones (no ties)."""
+    from scrppl.planning import quadrature_expected_entropy
+
+    _, predictive = _filter_fns()
     out = []
-    specs = [
-        # (filter, earlier views (f, phi, e, s), current view, also visited, unavailable, cost)
-        ("instance", [(1.2, 0, 1, 0)], (0, 1, 0), [], ["best"], 0.0),
-        ("instance", [(0.4, 7, 0, 0)], (7, 0, 0), [], [], 0.05),
-        ("instance", [(0.8, 3, 0, 0), (1.5, 1, 0, 0)], (1, 0, 0), [(3, 0, 0)], [(7, 0, 0)], 0.2),
-        ("instance", [(1.9, 0, 0, 0)], (0, 0, 0), [(6, 0, 0)], [(2, 0, 0)], 0.1),
-        ("instance", [(0.1, 5, 1, 0), (1.0, 2, 1, 0)], (2, 1, 0), [(5, 1, 0)], [], 5.0),
-    ]
-    n, a, e = 2, 8, 2  # one model shape (and filter) for every input: one compilation
-    for kind, seen, current, extra, missing, cost in specs:
-        model = random_model(rng, n, 2, a, e, 1, tau=(0.5, 0.7))
-        belief = _belief_after(kind, model, seen)
-        visited = np.zeros((a, e, 1), bool)
-        for _, phi, ee, ss in seen:
-            visited[phi, ee, ss] = True
-        for v in extra:
-            visited[v] = True
-        available = np.ones((a, e, 1), bool)
-        for v in missing:
-            if v == "best":  # the most informative view has no image: a planner must notice
-                h = _expected_entropies(model, belief, current)
-                phi = int(np.argmin(np.where(visited[:, current[1], current[2]], np.inf, h)))
-                v = (phi, *current[1:])
-            available[v] = False
-        views = [tuple(int(i) for i in v) for v in np.argwhere(visited)]
-        gaps = [tuple(int(i) for i in v) for v in np.argwhere(~available)]
-        label = (
-            f"{'instance-aware' if kind == 'instance' else 'naive-Bayes'} belief, N = {n}, grid "
-            f"({a}, {e}, 1), current view {current}, visited {views}, unavailable {gaps}, "
-            f"motion_cost = {cost}"
+    # two real beliefs of the mixture cases: the quadrature expected entropy of every robot azimuth
+    for i, current, seen in [(1, 3, [2]), (2, 4, [7])]:
+        model, belief, _, view, label = mixture_cases()[i]
+        e, s = view[1], view[2]
+        h = np.array(
+            [
+                float(quadrature_expected_entropy(predictive(model, belief, phi, e, s)))
+                for phi in range(8)
+            ]
         )
-        out.append(Case((model, belief, current, visited, available, cost), label))
+        valid = np.ones(8, bool)
+        valid[[current, *seen]] = False
+        out.append(
+            Case(
+                (h, np.arange(8), current, valid),
+                f"{label.split(';')[0]}; every robot azimuth, robot at {current}, visited {[current, *seen]}",
+            )
+        )
+    rng = np.random.default_rng(840)
+    # around the circle: the robot at 7 is one bin from 0; the free choice is at 3 (4 bins away)
+    h = np.array([0.50, 0.95, 0.90, 0.30, 0.85, 0.62, 0.88, 9.0])
+    valid = np.arange(8) != 7
+    out.append(
+        Case((h, np.arange(8), 7, valid), "hand-made, robot at 7 (its neighbours are 6 and 0)")
+    )
+    # a nearer, cheaper view that may not be chosen (visited or without an image)
+    h = np.array([9.0, 0.41, 0.70, 0.36, 0.20, 0.80, 0.55, 0.45])
+    valid = np.array([False, False, True, True, True, True, True, True])
+    out.append(Case((h, np.arange(8), 0, valid), "hand-made, robot at 0; view 1 is not available"))
+    # the free choice is already a neighbour: no price moves the robot elsewhere
+    h = np.array([0.9, 0.2, 0.7, 0.6, 0.5, 0.4, 0.3, 9.0])
+    out.append(
+        Case((h, np.arange(8), 0, np.arange(8) != 0), "hand-made, the best view is a neighbour")
+    )
+    # a few candidates, not in azimuth order, A = 12
+    phi = np.array([9, 2, 5, 11, 7])
+    h = rng.uniform(0.2, 1.0, phi.size)
+    h[2] = 0.1  # the free choice: 5, four bins from 1
+    out.append(
+        Case(
+            (h, phi, 1, np.ones(phi.size, bool)),
+            "five candidates out of order, robot at 1, A = 12",
+            {"n_azimuth": 12},
+        )
+    )
     return tuple(out)
 
 
-def _plan_cases() -> tuple:
-    return _plan_case_list()
-
-
-_PLAN_HINTS = {
-    "linear": "the robot moves around a circle: the distance from azimuth phi0 to phi is "
-    "min((phi - phi0) mod A, (phi0 - phi) mod A) bins (scrppl.views.angular_distance), not "
-    "|phi - phi0|.",
-    "visited": "a view already visited (visited[phi, e, s]) may not be chosen again: give it an "
-    "infinite score.",
-    "available": "a view that cannot be observed (available[phi, e, s] False, a missing image) may "
-    "not be chosen.",
-    "degrees": "motion_cost is in nats per azimuth *bin*, not per degree.",
-    "no_cost": "add motion_cost times the distance travelled to each candidate's expected entropy "
-    "before taking the argmin.",
-}
-
-
-def _wrong_planner(how):
-    def plan(model, belief, current, visited, available, motion_cost):
-        for i, case in enumerate(_plan_cases()):
-            if case.args[0] is model and case.args[1] is belief:
-                return _plan_variant(i, how)
-        raise ValueError("not one of the check's inputs")
-
-    plan.__name__ = f"plan_{how}"
-    return plan
+_SWITCH_MISTAKES = [
+    Mistake(
+        "the robot moves around a circle: the distance from azimuth phi0 to phi is "
+        "min((phi - phi0) mod A, (phi0 - phi) mod A) bins (scrppl.views.angular_distance), not "
+        "|phi - phi0|.",
+        lambda h, phi, cur, valid, n_azimuth=8: _switch_cost_formula(
+            h, phi, cur, valid, n_azimuth, "linear"
+        ),
+    ),
+    Mistake(
+        "a candidate that may not be chosen (valid False: visited, or without an image) can neither be "
+        "the free choice nor take over from it.",
+        lambda h, phi, cur, valid, n_azimuth=8: _switch_cost_formula(
+            h, phi, cur, valid, n_azimuth, "invalid"
+        ),
+    ),
+    Mistake(
+        "only a *nearer* candidate can take over: one at the same distance or further away loses at "
+        "every price. Leave the others out before taking the minimum.",
+        lambda h, phi, cur, valid, n_azimuth=8: _switch_cost_formula(
+            h, phi, cur, valid, n_azimuth, "all"
+        ),
+    ),
+    Mistake(
+        "the planner leaves its free choice as soon as the *first* nearer candidate overtakes it: take "
+        "the smallest price over the nearer candidates, not the largest.",
+        lambda h, phi, cur, valid, n_azimuth=8: _switch_cost_formula(
+            h, phi, cur, valid, n_azimuth, "max"
+        ),
+    ),
+    Mistake(
+        "the price is in nats per azimuth *bin*, not per degree.",
+        lambda h, phi, cur, valid, n_azimuth=8: _switch_cost_formula(
+            h, phi, cur, valid, n_azimuth, "degrees"
+        ),
+    ),
+]
 
 
 @exercise(
     "8.4",
-    "A planner that pays for travel",
+    "The price of a detour",
     "hard",
-    reference=lambda: (_plan_ref,),
-    wrong=lambda: [(_wrong_planner(h),) for h in ("linear", "visited", "available", "no_cost")],
+    reference=lambda: (_switch_cost_ref,),
+    wrong=lambda: [(m.fn,) for m in _SWITCH_MISTAKES[:4]],
 )
-def check_8_4(plan_with_motion_cost) -> str:
+def check_8_4(switch_cost) -> str:
     """Check exercise 8.4.
 
-    ``plan_with_motion_cost(model, belief, current, visited, available, motion_cost)`` must return a
-    view ``(phi, e, s)`` at the current elevation and scale, neither visited nor unavailable, whose
-    score under :func:`scrppl.planning.choose_view` (quadrature planner, joint objective, the same
-    motion cost) is the smallest (ties are accepted).
+    ``switch_cost(expected_entropy, azimuths, current, valid, n_azimuth=8)`` must return the smallest
+    price per bin above which ``argmin(H + price * distance)`` over the valid candidates leaves the free
+    choice (``inf`` when no valid candidate is nearer), as :func:`scrppl.planning.select_view` with
+    :func:`scrppl.planning.travel_cost` decides.
     """
-    name = "plan_with_motion_cost(model, belief, current, visited, available, motion_cost)"
-    mask = np.zeros((8, 1, 1), bool)
-    _probe(plan_with_motion_cost, name, None, None, (0, 0, 0), mask, ~mask, 0.0)
-    names = ["model", "belief", "current", "visited", "available", "motion_cost"]
-    cases = _plan_cases()
-    for i, case in enumerate(cases):
-        where = f"{i + 1} of {len(cases)}"
-        got = call(plan_with_motion_cost, name, case, where=where, arg_names=names)
-        if got is None:
-            fail(f"`{name}` returned None on input {where}: did you forget the `return` statement?")
-        try:
-            view = tuple(int(x) for x in np.asarray(got).ravel())
-        except (TypeError, ValueError):
-            view = ()
-        intro = f"`{name}` on input {where} ({case.label})"
-        if len(view) != 3:
-            fail(f"{intro} returned {got!r}; return the chosen view as a tuple (phi, e, s).")
-        model, belief, current, visited, available, cost = case.args
-        if view[1:] != tuple(current[1:]):
-            fail(
-                f"{intro} returned {view}: the candidates are the robot azimuths at the current "
-                f"elevation and scale {tuple(current[1:])}."
+    name = "switch_cost(expected_entropy, azimuths, current, valid, n_azimuth)"
+    _probe(switch_cost, name, np.array([0.5, 0.2]), np.array([1, 2]), 0, np.ones(2, bool))
+    n = check_function(
+        switch_cost,
+        _switch_cost_ref,
+        _switch_cases(),
+        name=name,
+        rtol=1e-6,
+        atol=1e-9,
+        mistakes=_SWITCH_MISTAKES,
+        hint="the free choice c0 = argmin of H over the valid candidates; a valid candidate c nearer "
+        "than c0 overtakes it when H_c + price d_c < H_c0 + price d_c0, i.e. above the price "
+        "(H_c - H_c0) / (d_c0 - d_c); return the smallest such price (inf if there is none).",
+        convert=lambda x: float(np.asarray(x)),
+    )
+    return f"agrees with the decisions of scrppl.planning.select_view on {n} inputs"
+
+
+# -- 8.5 the information gain of a view -------------------------------------------------------------
+def _info_np(mixture, order, how=""):
+    """``I((o, theta); f)`` by Gauss-Hermite quadrature per component, or one of the natural mistakes.
+
+    ``I = sum_j w_j E_{f ~ N(m_j, v_j)}[log p(f | o_j, theta_j) - log p(f)]`` over the components
+    ``j = (n, o, theta)``; ``how``: ``"components"`` (``log N(f; m_j, v_j)`` in place of
+    ``log p(f | o, theta)``), ``"no_pi"`` (weights not divided by ``sqrt(pi)``), ``"bits"`` (``log2``).
+    """
+    lw, mean, var = _np_mixture(mixture)
+    n, o, a = lw.shape
+    x, omega = np.polynomial.hermite.hermgauss(int(order))
+    if how != "no_pi":
+        omega = omega / math.sqrt(math.pi)
+    f = (
+        mean[..., None] + np.sqrt(2.0 * var)[..., None] * x
+    )  # (N, O, A, Q): the nodes of each component
+    fq = f.reshape(-1)
+    # log w_j N(f; m_j, v_j) of every node under every component: (N, O, A, N*O*A*Q)
+    log_norm = -0.5 * (fq - mean[..., None]) ** 2 / var[..., None] - 0.5 * np.log(
+        2 * np.pi * var[..., None]
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_joint = lw[..., None] + log_norm
+        log_pf = logsumexp(log_joint.reshape(-1, fq.size), axis=0).reshape(n, o, a, -1)  # log p(f)
+        log_fs = (
+            logsumexp(log_joint, axis=0) - logsumexp(lw, axis=0)[..., None]
+        )  # log p(f | o, theta)
+        log_fs = log_fs.reshape(o, a, n, o, a, -1)
+        io, ia = np.meshgrid(np.arange(o), np.arange(a), indexing="ij")
+        own = np.moveaxis(
+            log_fs[io, ia, :, io, ia, :], 2, 0
+        )  # (N, O, A, Q): each node, its own state
+        if how == "components":
+            own = -0.5 * (f - mean[..., None]) ** 2 / var[..., None] - 0.5 * np.log(
+                2 * np.pi * var[..., None]
             )
-        scores = _scores_ref(*case.args)
-        best = _plan_ref(*case.args)
-        n_a = model.mu.shape[2]
-        if not 0 <= view[0] < n_a:
-            fail(f"{intro} returned {view}: the azimuth must lie in 0..{n_a - 1}.")
-        if not np.isfinite(scores[view[0]]) or scores[view[0]] > scores[best[0]] + 1e-5:
-            lines = [f"{intro} chose {view}, but the best view is {best}:"]
-            if np.isfinite(scores[view[0]]):
-                lines.append(
-                    f"  expected entropy + motion cost: {scores[view[0]]:.4f} nats for "
-                    f"your view, {scores[best[0]]:.4f} for the best one."
-                )
-            else:
-                lines.append("  your view may not be chosen (visited or unavailable).")
-            for how, hint in _PLAN_HINTS.items():
-                if _plan_variant(i, how) == view:
-                    lines.append(f"Hint: {hint}")
-                    break
-            fail("\n".join(lines))
-    return f"chooses an optimal view (the scores of scrppl.planning.choose_view) on {len(cases)} inputs"
+        w = np.exp(lw)[..., None]
+        terms = np.where(w > 0, w * (own - log_pf), 0.0)  # impossible states add nothing
+    out = float(np.sum(terms @ omega))
+    return out / math.log(2) if how == "bits" else out
+
+
+def _info_ref(mixture, order):
+    """``I = H(b) - E_f[H(b'_f)]``, from the library (the identity of chapter 8).
+
+    The entropy of the belief over ``(o, theta)`` that the mixture weights carry
+    (:func:`scrppl.belief.entropy`) minus :func:`scrppl.planning.quadrature_expected_entropy`.
+    """
+    from scrppl.belief import entropy
+
+    lw = jnp.asarray(mixture.log_weight)
+    h_now = float(entropy(jax.scipy.special.logsumexp(lw, axis=0)))
+    return h_now - _quadrature_ref(mixture, order)
+
+
+def _info_cases() -> list[Case]:
+    # the orders (and shapes) of exercise 8.3's inputs, whose compiled references these share; at
+    # these orders the two quadratures (of I and of the expected entropy) agree to 1e-4 nats
+    orders = (_ORDER, 16, _ORDER, _ORDER)
+    return [
+        Case((mix, order), f"{label}; order = {order}")
+        for (mix, label), order in zip(_mixture_args(), orders, strict=True)
+    ]
+
+
+_INFO_MISTAKES = [
+    Mistake(
+        "the state is (o, theta), not the component (n, o, theta): log p(f | o, theta) averages the "
+        "normals of the N posterior draws of that state (weights w[n, o, theta] / b(o, theta)). With "
+        "one normal per component you computed the information about the draw n as well, which says "
+        "nothing about the object.",
+        lambda mix, order: _info_np(mix, order, "components"),
+    ),
+    Mistake(
+        "numpy.polynomial.hermite.hermgauss integrates against exp(-x^2), whose integral is sqrt(pi): "
+        "divide its weights by sqrt(pi) to get an expectation under N(0, 1).",
+        lambda mix, order: _info_np(mix, order, "no_pi"),
+    ),
+    Mistake(
+        "the book measures information in nats: use the natural logarithm, not log2.",
+        lambda mix, order: _info_np(mix, order, "bits"),
+    ),
+]
+
+
+@exercise(
+    "8.5",
+    "The information gain of a view",
+    "medium",
+    reference=lambda: (_info_ref,),
+    wrong=lambda: [(m.fn,) for m in _INFO_MISTAKES],
+)
+def check_8_5(information_gain) -> str:
+    """Check exercise 8.5.
+
+    ``information_gain(mixture, order)`` (the mutual information between the state ``(o, theta)`` and
+    the next response, by quadrature) must equal the entropy of the current belief minus
+    :func:`scrppl.planning.quadrature_expected_entropy` of the mixture, to quadrature accuracy.
+    """
+    _probe(information_gain, "information_gain(mixture, order)", _tiny_mixture(), 2)
+    n = check_function(
+        information_gain,
+        _info_ref,
+        _info_cases(),
+        name="information_gain(mixture, order)",
+        rtol=1e-3,
+        atol=1e-3,
+        mistakes=_INFO_MISTAKES,
+        hint="I = sum_j w_j sum_r (omega_r / sqrt(pi)) [log p(f | o_j, theta_j) - log p(f)] at the nodes "
+        "f = m_j + sqrt(2 v_j) x_r of each component j = (n, o, theta); p(f | o, theta) = sum_n "
+        "w[n, o, theta] N(f; m, v) / b(o, theta), p(f) = sum over all components.",
+        convert=lambda x: float(np.asarray(x)),
+    )
+    return (
+        f"equals H(b) - scrppl.planning.quadrature_expected_entropy on {n} mixtures (E[H] = H - I)"
+    )
