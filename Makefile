@@ -16,7 +16,10 @@ ifeq ($(CPU),native)
 export SCRPPL_NATIVE_CPU := 1
 endif
 
-.PHONY: help reproduce quick test test-slow lint lock book claims student clean-results
+# Every extra: the lock (and so `make`'s .venv) installs everything; `pip install scrppl` only the core.
+LOCK_EXTRAS := --extra render --extra dask --extra test --extra book --extra dev
+
+.PHONY: help reproduce quick test test-slow lint lock book claims student dist clean-results
 
 help:
 	@echo "make reproduce   the whole pipeline on the embedded default dataset -> $(OUT)/ (PROFILE=quick for a short run)"
@@ -24,8 +27,9 @@ help:
 	@echo "make book        the executed HTML book, offline -> book/_build/html (then a browser check)"
 	@echo "make claims      every chapter's asserted claims against the book profile of SEED (e.g. SEED=1)"
 	@echo "make student     student copies of the exercise notebooks (solutions replaced by stubs) -> build/student"
+	@echo "make dist        the sdist and wheel -> dist/ (the wheel installs the core; extras render, dask, all)"
 	@echo "make lint        ruff"
-	@echo "make lock        regenerate environment.lock from pyproject.toml (needs uv, installed in .venv)"
+	@echo "make lock        regenerate environment.lock and environment-core.lock from pyproject.toml (uv, in .venv)"
 
 $(STAMP): environment.lock
 	@bash scripts/make-venv.sh
@@ -58,9 +62,17 @@ student: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
+# environment.lock: every extra (what .venv gets). environment-core.lock: the core dependencies alone, at the
+# versions of environment.lock (what `pip install scrppl` needs; tests/test_dist.py installs it with the wheel).
 lock: $(STAMP)
-	$(VENV)/bin/uv pip compile pyproject.toml --extra test --extra book --extra dev \
+	$(VENV)/bin/uv pip compile pyproject.toml $(LOCK_EXTRAS) \
 		--generate-hashes --python-version 3.12 -o environment.lock
+	$(VENV)/bin/uv pip compile pyproject.toml -c environment.lock --annotation-style line \
+		--generate-hashes --python-version 3.12 -o environment-core.lock
+
+# The sdist and the wheel (built from the sdist, offline, with the locked setuptools).
+dist: $(STAMP)
+	bash scripts/build-dist.sh dist
 
 clean-results:
 	rm -rf $(OUT) $(OUT)-quick results-book results-book-*

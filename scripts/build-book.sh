@@ -5,8 +5,12 @@
 #    run folder named by $SCRPPL_RESULTS (`make book RESULTS=results` for a full run). Chapters read the
 #    chosen folder through $SCRPPL_RESULTS and say on each page which run they show.
 # 2. MathJax 3 from the npm registry into book/_build/.mathjax (not committed; reused when present).
-# 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors.
-# 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets; screenshots.
+# 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors. It also
+#    generates the API reference from the docstrings (book/_ext/scrppl_api.py) and puts each notebook page's
+#    .ipynb and each exercise page's student copy (scripts/make_student.py, the code of `make student`) in
+#    the HTML output's _sources/, offered by the pages' download menus (book/_ext/scrppl_downloads.py).
+# 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets, the download
+#    links serve notebooks; screenshots.
 # Timings go to book/_build/timings.json.
 set -euo pipefail
 shopt -s inherit_errexit 2>/dev/null || true

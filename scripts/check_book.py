@@ -6,7 +6,11 @@ For each chapter (every page listed in ``book/_toc.yml``) the check asserts that
 * every image in the page loaded (``naturalWidth > 0``);
 * math is typeset: MathJax output elements are present and no raw ``\\(`` / ``$$`` delimiters remain;
 * no cell shows an error, a traceback or stderr output, and Sphinx left no error message in the page;
-* the page loads no remote script, stylesheet or font (checked on the HTML files).
+* the page loads no remote script, stylesheet or font (checked on the HTML files);
+* downloads: every chapter page (``chapters/``) offers its notebook and every exercise page
+  (``exercises/``) its notebook and its student copy in the download menu, and each link, fetched from
+  the loopback server, is a valid notebook (the student copy: no outputs, an answer cell to write;
+  ``book/_ext/scrppl_downloads.py`` writes them).
 
 It serves ``book/_build/html`` over loopback, loads each page inside a same-origin ``<iframe>`` of a small
 probe page (so that plain ``chromium --dump-dom`` can read the loaded page's DOM, with no browser driver),
@@ -157,6 +161,61 @@ def screenshot(browser: str, url: str, path: Path, profile: str) -> None:
     subprocess.run(cmd, capture_output=True, timeout=120)
 
 
+#: The download menu's links (sphinx-book-theme renders each as ``<a href=... class="btn ... btn-<label>``).
+DOWNLOAD_LINK = re.compile(
+    r"""<a href="(?P<href>[^"]+)"[^>]*?class="[^"]*\bbtn-(?P<label>download-(?:notebook|student)-button)\b"""
+)
+#: Which downloads a page must offer, by the start of its path.
+REQUIRED_DOWNLOADS = {
+    "chapters/": ("download-notebook-button",),
+    "exercises/": ("download-notebook-button", "download-student-button"),
+}
+
+
+def download_links(html: Path, page: str) -> dict[str, str]:
+    """``{label: href}`` of a built page's notebook downloads (hrefs relative to the page)."""
+    path = html / f"{page}.html"
+    if not path.exists():
+        return {}
+    text = path.read_text(errors="replace")
+    return {m.group("label"): m.group("href") for m in DOWNLOAD_LINK.finditer(text)}
+
+
+def check_downloads(html: Path, page: str, port: int) -> tuple[list[str], dict]:
+    """Fetch the page's notebook downloads over loopback; the problems, and what was fetched."""
+    import urllib.parse
+    import urllib.request
+
+    import nbformat
+
+    required = next((v for k, v in REQUIRED_DOWNLOADS.items() if page.startswith(k)), ())
+    links = download_links(html, page)
+    problems = [
+        f"no {label.removesuffix('-button')} link" for label in required if label not in links
+    ]
+    fetched = {}
+    for label, href in links.items():
+        url = urllib.parse.urljoin(f"http://127.0.0.1:{port}/{page}.html", href)
+        try:
+            with urllib.request.urlopen(url, timeout=30) as response:
+                body = response.read()
+            nb = nbformat.reads(body.decode("utf-8"), as_version=4)
+            nbformat.validate(nb)
+        except Exception as err:  # noqa: BLE001 - reported as the page's problem
+            problems.append(f"{label} {href}: not a valid notebook ({type(err).__name__}: {err})")
+            continue
+        code = [c for c in nb.cells if c.cell_type == "code"]
+        if not code:
+            problems.append(f"{label} {href}: no code cell")
+        if label == "download-student-button":
+            if any(c.get("outputs") for c in code):
+                problems.append(f"{label} {href}: the student copy has outputs")
+            if not any("answer" in c.get("metadata", {}).get("tags", []) for c in code):
+                problems.append(f"{label} {href}: the student copy has no answer cell")
+        fetched[label] = {"href": href, "bytes": len(body), "cells": len(nb.cells)}
+    return problems, fetched
+
+
 def problems_of(page: str, r: dict) -> list[str]:
     if "probe_failed" in r:
         return [f"the page could not be inspected: {r['probe_failed']!r}"]
@@ -216,15 +275,23 @@ def main(argv: list[str] | None = None) -> int:
                 probs = problems_of(page, r)
                 if page.startswith(args.require_math) and not r.get("mathjax"):
                     probs.append("no typeset math on a chapter page")
+                download_problems, downloads = check_downloads(args.html, page, port)
+                probs += download_problems
                 if probs:
                     failures[page] = probs
                 shot = args.screenshots / f"{page.replace('/', '-')}.png"
                 screenshot(browser, url, shot, profile)
                 summary[page] = {k: r.get(k) for k in ("title", "images", "mathjax", "chars")}
+                if downloads:
+                    summary[page]["downloads"] = downloads
                 status = "ok" if not probs else "FAIL"
+                offered = "".join(
+                    f", {label.split('-')[1]} .ipynb {d['bytes'] // 1024} kB"
+                    for label, d in downloads.items()
+                )
                 print(
                     f"[check-book] {status:4} {page}: '{r.get('title', '')}', {r.get('images', 0)} images, "
-                    f"{r.get('mathjax', 0)} typeset formulas -> {shot}"
+                    f"{r.get('mathjax', 0)} typeset formulas{offered} -> {shot}"
                 )
     finally:
         server.shutdown()

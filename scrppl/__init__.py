@@ -3,7 +3,9 @@
 A reimplementation of Meger, Gupta & Little, *Viewpoint Detection Models for Sequential Embodied
 Object Category Recognition* (ICRA 2010), with hierarchical Bayesian viewpoint models fitted by MCMC.
 
-Import it as ``import scrppl as sp``; the submodules load on first use (``sp.belief``, ``sp.planning``, ...):
+Import it as ``import scrppl as sp``; the submodules load on first use (``sp.belief``, ``sp.planning``, ...).
+:func:`example_model` loads a fitted viewpoint model shipped with the package (no pipeline run needed),
+:func:`open_results` a run folder of ``scrppl reproduce``. The submodules:
 
 * :mod:`scrppl.views` -- the view grid and the relative azimuth;
 * :mod:`scrppl.datasets` -- :class:`~scrppl.datasets.MultiviewDataset`, the Savarese loader, the synthetic
@@ -21,6 +23,7 @@ Import it as ``import scrppl as sp``; the submodules load on first use (``sp.bel
 * :mod:`scrppl.plotting` -- every figure (the only module that imports matplotlib);
 * :mod:`scrppl.results` -- :func:`open_results`, one run folder's outputs as one object;
 * :mod:`scrppl.exercises` -- feedback on the book's exercises (``check("7.1", answer)``);
+* :mod:`scrppl.examples` -- the example models shipped with the package (:func:`example_model`);
 * :mod:`scrppl.numerics` -- portable numerics: the same bytes for a seed on every x86-64 machine with AVX2.
 """
 
@@ -37,12 +40,14 @@ _portable()
 from scrppl import views  # noqa: E402
 from scrppl.views import SAVARESE_GRID, ViewGrid, relative_azimuth  # noqa: E402
 
+#: The version of scrppl.
 __version__ = "0.1.0"
 
 _SUBMODULES = (
     "belief",
     "datasets",
     "detectors",
+    "examples",
     "exercises",
     "extensions",
     "kway",
@@ -57,6 +62,8 @@ _SUBMODULES = (
 )
 
 __all__ = [
+    "example_model",
+    "example_kway_model",
     "open_results",
     "views",
     "ViewGrid",
@@ -72,6 +79,10 @@ def __getattr__(name: str):
         from scrppl.results import open_results
 
         return open_results
+    if name in ("example_model", "example_kway_model"):
+        from scrppl import examples
+
+        return getattr(examples, name)
     if name in _SUBMODULES:
         return importlib.import_module(f"scrppl.{name}")
     raise AttributeError(f"module 'scrppl' has no attribute {name!r}")

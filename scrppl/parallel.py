@@ -355,8 +355,10 @@ def local_cluster(n_workers: int | None = None, **kwargs):
     **kwargs
         Passed to :class:`distributed.LocalCluster` (they override the defaults above).
     """
-    import dask
-    from distributed import LocalCluster
+    from scrppl._extras import require
+
+    dask = require("dask", "dask")
+    LocalCluster = require("dask", "distributed").LocalCluster
 
     options = dict(
         n_workers=int(n_workers or os.cpu_count() or 1),
@@ -408,8 +410,9 @@ def executor(
     if scheduler is None:
         yield Executor()
         return
-    from distributed import Client
+    from scrppl._extras import require
 
+    Client = require("dask", "distributed").Client
     if scheduler == "local":
         with local_cluster(workers) as cluster, Client(cluster) as client:
             yield DaskExecutor(client, retries=retries)

@@ -373,7 +373,7 @@ def posterior_entropy(mixture: Mixture, f, objective: str = "joint") -> jax.Arra
 def sampled_expected_entropy(
     key: jax.Array, mixture: Mixture, n_samples: int = 256, objective: str = "joint"
 ) -> jax.Array:
-    """Monte Carlo estimate of ``E_f[H(p(. | F, f))]`` for one candidate view (Meger et al. 2010, eq. 5).
+    """Monte Carlo estimate of ``E_f[H(p(o, theta | F, f))]`` for one candidate view (Meger et al. 2010, eq. 5).
 
     ``E_f[H] ~ (1/M) sum_m H(p(o, theta | F, f_m))``, ``f_m ~ p(f | F, V)``: draw ``M = n_samples``
     pairs ``(state, response)`` -- a component ``k = (n, o, theta)`` of the predictive mixture (the

@@ -43,7 +43,9 @@ __all__ = [
     "load_response_table",
 ]
 
+#: Dimensions of the table's ``score``, in order.
 DIMS = ("detector", "target", "category", "instance", "azimuth", "elevation", "scale")
+#: Values of ``split``: detector training, viewpoint-model fitting, held out for the simulator.
 SPLITS = ("train", "fit", "test")
 
 

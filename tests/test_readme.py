@@ -73,3 +73,49 @@ def test_readme_loading_example_runs_on_a_run_folder(tmp_path, monkeypatch, rng)
     want = log_prob(m.response_model, jnp.asarray(raw[0, 2, 0, 0]), 1, 2, 0, 0)
     np.testing.assert_allclose(np.asarray(env["m"].log_prob(raw[0, 2, 0, 0], o=1, a=2)), want)
     assert len(env["fig"].axes) == 2  # one row: positives and negatives
+
+
+def _python_blocks(text: str) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", text, re.S)
+
+
+def _quick_start(text: str) -> str:
+    return re.search(r"## Quick start: [^\n]*\n.*?```python\n(.*?)```", text, re.S).group(1)
+
+
+def test_readme_quick_start_runs(monkeypatch, tmp_path):
+    """The quick start for importers: an example model, two responses filtered, the next view, a plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    block = _quick_start(text)
+    assert len(block.strip().splitlines()) <= 20
+    monkeypatch.chdir(tmp_path)  # the block must not need a run folder or any file
+    env: dict = {}
+    exec(compile(block, "README.md", "exec"), env)  # noqa: S102 - the README's own example
+    p = np.asarray(env["belief"].class_marginal(env["b"]))
+    assert 0.5 < p[1] < 1  # two car-like scores: more likely a car than not, not yet certain
+    assert bool(env["found"]) and int(env["view"][0]) not in (0, 4)
+    assert np.isinf(np.asarray(env["scores"])[[0, 4]]).all()
+    assert len(env["history"]) == 3 and len(env["fig"].axes) >= 3
+
+
+def test_readme_python_blocks_are_all_executed_or_explained():
+    """Every Python block of the README is run by a test above, or named here with why it is not."""
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    blocks = _python_blocks(text)
+    executed = [
+        _quick_start(text),
+        re.search(r"## Using the library\n\n```python\n(.*?)```", text, re.S).group(1),
+        re.search(r"After\n`make reproduce`:\n\n```python\n(.*?)```", text, re.S).group(1),
+    ]
+    not_run = {
+        'open_dataset("3Dcategories"': "needs a copy of the Savarese dataset",
+        "from dask_jobqueue import SLURMCluster": "needs a SLURM cluster (dask-jobqueue)",
+    }
+    for block in blocks:
+        if block in executed:
+            continue
+        assert any(marker in block for marker in not_run), f"a README block no test runs:\n{block}"
+    assert len(blocks) == len(executed) + len(not_run)

@@ -57,9 +57,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from scrppl._extras import MissingExtraError
+
     try:
         return int(args.func(args) or 0)
-    except (FileNotFoundError, ValueError) as err:
+    except (
+        FileNotFoundError,
+        ValueError,
+        MissingExtraError,
+    ) as err:  # an extra: names what to install
         print(f"scrppl {args.command}: error: {err}", file=sys.stderr)
         return 1
 

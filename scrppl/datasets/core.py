@@ -42,6 +42,7 @@ __all__ = [
     "bbox_from_mask",
 ]
 
+#: Columns of a dataset's index (one row per image; see the module docstring).
 INDEX_COLUMNS = (
     "category",
     "instance",
@@ -56,6 +57,7 @@ INDEX_COLUMNS = (
     "x1",
     "y1",
 )
+#: Instance splits: detector training, viewpoint-model fitting, held out (the simulator's objects).
 SPLITS = ("train", "fit", "test")
 #: Default share of instances per category in (train, fit, test): 4 / 3 / 3 of 10.
 DEFAULT_SPLIT_PROPORTIONS = (0.4, 0.3, 0.3)

@@ -189,11 +189,13 @@ def fit_hierarchical(
 
     Returns
     -------
-    ``DataTree`` with groups ``posterior`` (every parameter and the response-scale ``mu (class, azimuth,
-    elevation, scale)``, ``sigma (class, azimuth)``, ``tau (class)``, ``kappa``) and ``sample_stats``;
-    root attributes ``kind="hierarchical"``, ``detector``, ``target``, ``transform``, ``meta`` (JSON:
-    among others the standardisation ``loc``/``scale``, the ``noise_floor``, the parameterisation and
-    the sampler settings) and ``diagnostics`` (JSON of :func:`~scrppl.models.diagnostics.diagnose`).
+    xarray.DataTree
+        Groups ``posterior`` (every parameter and the response-scale
+        ``mu (class, azimuth, elevation, scale)``, ``sigma (class, azimuth)``, ``tau (class)``,
+        ``kappa``) and ``sample_stats``; root attributes ``kind="hierarchical"``, ``detector``,
+        ``target``, ``transform``, ``meta`` (JSON: among others the standardisation ``loc``/``scale``,
+        the ``noise_floor``, the parameterisation and the sampler settings) and ``diagnostics`` (JSON of
+        :func:`~scrppl.models.diagnostics.diagnose`).
     """
     model, args, record = _prepare(data, meta, marginal, noncentered)
     label = f"{meta['detector']}/{meta['target']}"

@@ -131,10 +131,11 @@ def pool_sources(pool: str, seed: int) -> tuple[str, ...]:
 # -- sources ---------------------------------------------------------------------------------------
 @lru_cache(maxsize=32)
 def _photo(name: str) -> np.ndarray:
-    import skimage.data
+    from scrppl._extras import require
 
+    skimage_data = require("render", "skimage.data")
     try:
-        img = getattr(skimage.data, name)()
+        img = getattr(skimage_data, name)()
     except Exception as err:  # a sample that would need a download, or a renamed one
         raise RuntimeError(
             f"scikit-image sample image {name!r} is not available offline: {err}"

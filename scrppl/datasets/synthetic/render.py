@@ -161,8 +161,10 @@ class SceneRenderer:
     def __init__(self, width: int = 320, height: int = 240, *, shadow_resolution: int = 1024):
         if int(width) < 16 or int(height) < 16:
             raise ValueError(f"image size must be at least 16x16 pixels, got {width}x{height}")
-        import pyvista as pv
-        import vtk
+        from scrppl._extras import require
+
+        pv = require("render", "pyvista")
+        vtk = require("render", "vtk")
 
         vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_ERROR)
         self._pv, self._vtk = pv, vtk
@@ -312,7 +314,9 @@ class SceneRenderer:
         cam.clipping_range = (_NEAR, _FAR)
 
     def _read_rgb(self) -> np.ndarray:
-        from vtkmodules.util.numpy_support import vtk_to_numpy
+        from scrppl._extras import require
+
+        vtk_to_numpy = require("render", "vtkmodules.util.numpy_support").vtk_to_numpy
 
         arr = self._vtk.vtkUnsignedCharArray()
         self._win.GetRGBACharPixelData(0, 0, self.width - 1, self.height - 1, 0, arr)
@@ -320,7 +324,9 @@ class SceneRenderer:
 
     def _read_eye_depth(self) -> np.ndarray:
         """Distance along the viewing axis of the surface in each pixel (``inf``: nothing there)."""
-        from vtkmodules.util.numpy_support import vtk_to_numpy
+        from scrppl._extras import require
+
+        vtk_to_numpy = require("render", "vtkmodules.util.numpy_support").vtk_to_numpy
 
         arr = self._vtk.vtkFloatArray()
         self._win.GetZbufferData(0, 0, self.width - 1, self.height - 1, arr)

@@ -21,9 +21,12 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:  # the meshes are built by the categories' modules (the render extra)
+    import trimesh
 
 __all__ = [
     "CATEGORIES",

@@ -9,7 +9,10 @@ bottom row (``v = 0``) to the top row (``v = 1``).
 from __future__ import annotations
 
 import numpy as np
-import trimesh
+
+from scrppl._extras import require
+
+trimesh = require("render", "trimesh")
 
 __all__ = [
     "box",
