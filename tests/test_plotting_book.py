@@ -325,3 +325,22 @@ def test_save_figure_is_atomic_and_the_only_one(tmp_path):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the old file survives a failed save
     assert [p.name for p in path.parent.iterdir()] == ["f.png"]
     plt.close(bad)
+
+
+def test_animate_posterior_evolution_is_offline_html_with_one_frame_per_belief():
+    import re
+
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import animate_posterior_evolution, animation_html
+
+    b = np.random.default_rng(3).dirichlet(np.ones(8), size=3).reshape(3, 2, 4)
+    before = plt.get_fignums()
+    anim = animate_posterior_evolution(b, 1, [None, 0, 2], label="car", dpi=30, size=2.0)
+    assert plt.get_fignums() == before  # released from pyplot: no static copy in a notebook
+    html = animation_html(anim)
+    assert html.count("data:image/png;base64") == 3  # the prior and two views, embedded
+    assert not re.search(r"(?:src|href)=[\"']https?://", html)  # nothing loaded from the network
+    assert 'class="fa' not in html and "&#x25B6;" in html  # the play button drawn as a character
+    with pytest.raises(ValueError, match="one robot azimuth per frame"):
+        animate_posterior_evolution(b, 1, [None, 0])

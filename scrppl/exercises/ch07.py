@@ -1,8 +1,10 @@
 """Checks for the exercises of chapter 7 (exact filtering over category and pose).
 
-The paper's naive-Bayes update (eqs. 1-3) by hand, the class and pose marginals and the entropy (eq. 4),
-naive Bayes with posterior draws and an instance effect, and one step of the instance-aware filter (a
-scalar Kalman update per draw and state). Every reference is :mod:`scrppl.belief`.
+The paper's naive-Bayes filter (eqs. 1-3) from a prior of the student's, through a missing view; the class
+and pose marginals and the entropy (eq. 4); naive Bayes with posterior draws and an instance effect; one
+step of the instance-aware filter (a scalar Kalman update per draw and state); and the prediction step of
+an object on a turntable. Every reference is :mod:`scrppl.belief`, except the turntable's
+(:func:`turntable_predict`): the library's state is static, as in the paper.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ __all__ = [
     "check_7_2",
     "check_7_3",
     "check_7_4",
+    "check_7_5",
+    "turntable_predict",
     "random_model",
     "random_log_belief",
 ]
@@ -60,7 +64,7 @@ def random_log_belief(rng, o=2, a=8, concentration=1.0, zeros=0):
         return np.log(p)
 
 
-# -- 7.1 the paper's update by hand ------------------------------------------------------------------
+# -- 7.1 the paper's filter from a prior, through a missing view ------------------------------------
 @jax.jit
 def _nb_paper_jit(log_belief, mu, sigma, f, phi):
     from scrppl.belief import NaiveBayesBelief, naive_bayes_update
@@ -78,121 +82,162 @@ def _nb_paper_ref(log_belief, mu, sigma, f, phi):
     return np.asarray(_nb_paper_jit(*args, jnp.asarray(phi)), float)
 
 
-def _nb_paper_cases() -> list[Case]:
+def _nb_filter_ref(prior, mu, sigma, phis, fs):
+    """The library's filter from ``prior``: ``p(o, theta | F)``, shape ``(O, A)``.
+
+    :func:`scrppl.belief.naive_bayes_init` with ``prior``, then :func:`~scrppl.belief.naive_bayes_update`
+    for every finite response (a ``nan`` response is a view whose image never came: skipped).
+    """
+    from scrppl.belief import naive_bayes_init
+    from scrppl.models.response import ResponseModel
+
+    mu, sigma = np.asarray(mu, float), np.asarray(sigma, float)
+    model = ResponseModel(
+        jnp.asarray(mu[None, :, :, None, None], jnp.float32),
+        jnp.asarray(sigma[None, :, :, None, None], jnp.float32),
+        jnp.zeros((1, mu.shape[0]), jnp.float32),
+    )
+    log_b = np.asarray(naive_bayes_init(model, jnp.asarray(prior, jnp.float32)).log_belief, float)
+    for phi, f in zip(phis, fs, strict=True):
+        if np.isfinite(f):
+            log_b = _nb_paper_ref(log_b, mu, sigma, f, phi)
+    return np.exp(log_b)
+
+
+def _room_prior(rng, o=2, a=8, p_present=0.25, impossible=()):
+    """A non-uniform prior ``p(o, theta)``: class probabilities times pose weights, some poses impossible."""
+    weights = rng.uniform(0.5, 2.0, a)
+    weights[list(impossible)] = 0.0
+    classes = np.r_[np.full(o - 1, (1 - p_present) / (o - 1)), p_present]
+    return np.outer(classes, weights / weights.sum())
+
+
+def _nb_filter_cases() -> list[Case]:
     rng = np.random.default_rng(71)
-    out = []
     mu = rng.normal(0.0, 1.5, (2, 8))
     sd = rng.uniform(0.4, 1.0, (2, 8))
-    out.append(
+    nan = float("nan")
+    return [
         Case(
-            (np.full((2, 8), -np.log(16.0)), mu, sd, 1.3, 3),
-            "uniform prior, O = 2 classes, A = 8 poses, robot azimuth phi = 3",
-        )
-    )
-    out.append(
+            (np.full((2, 8), 1 / 16), mu, sd, [3, 5, 0], [1.3, -0.4, 0.8]),
+            "the uniform prior, three views phi = 3, 5, 0, none missing",
+        ),
         Case(
-            (random_log_belief(rng), mu, sd, -0.4, 0),
-            "a belief after earlier views, phi = 0",
-        )
-    )
-    out.append(
+            (_room_prior(rng), mu, sd, [0, 2, 4], [1.1, nan, -0.2]),
+            "a prior with p(present) = 0.25 and uneven poses; the view phi = 2 has no image (nan)",
+        ),
+        Case(
+            (_room_prior(rng, impossible=(2, 3, 4)), mu, sd, [6, 1, 7, 2], [nan, 0.9, 2.0, -0.6]),
+            "poses 2, 3, 4 impossible in the prior (probability 0); the first view has no image",
+        ),
+        Case(
+            (_room_prior(rng, p_present=0.6), mu, sd, [1, 5], [nan, nan]),
+            "no view has an image: the answer is the prior",
+        ),
         Case(
             (
-                random_log_belief(rng, 3, 6),
+                _room_prior(rng, 3, 6, 0.5),
                 rng.normal(0, 1.5, (3, 6)),
                 rng.uniform(0.4, 1, (3, 6)),
-                0.8,
-                5,
+                [5, 0, 3],
+                [0.8, nan, 1.7],
             ),
-            "O = 3 classes, A = 6 poses, phi = 5",
-        )
-    )
-    out.append(
+            "O = 3 classes, A = 6 poses, a missing view",
+        ),
         Case(
-            (random_log_belief(rng, zeros=5), mu, sd, 2.1, 6),
-            "a belief with 5 impossible states (log probability -inf), phi = 6",
-        )
-    )
-    narrow = rng.uniform(0.3, 0.5, (2, 8))
-    out.append(
-        Case(
-            (random_log_belief(rng), mu, narrow, 30.0, 2),
+            (_room_prior(rng), mu, rng.uniform(0.3, 0.5, (2, 8)), [2, 4], [30.0, 1.0]),
             "a response far from every mean (f = 30): every density underflows to 0 in probability "
             "space",
-        )
-    )
-    return out
+        ),
+    ]
 
 
-def _nb_paper(log_belief, mu, sigma, f, phi, flip=False, normalise="joint", scale=None):
+def _nb_filter(prior, mu, sigma, phis, fs, how=""):
+    """Wrong variants of the filter (``how`` names the mistake)."""
+    mu, sigma = np.asarray(mu, float), np.asarray(sigma, float)
     n_a = mu.shape[1]
     theta = np.arange(n_a)
-    a = (theta - phi) % n_a if flip else (phi - theta) % n_a
-    sd = sigma[:, a] if scale is None else scale(sigma[:, a])
-    lp = np.asarray(log_belief) + norm.logpdf(f, mu[:, a], sd)
-    if normalise == "joint":
-        return lp - logsumexp(lp)
-    if normalise == "class":
-        return lp - logsumexp(lp, axis=1, keepdims=True)
-    if normalise == "probability":
+    prior = np.asarray(prior, float)
+    with np.errstate(divide="ignore"):
+        log_prior = np.log(np.full(prior.shape, 1.0 / prior.size) if how == "uniform" else prior)
+    log_b, p = log_prior.copy(), prior.copy()
+    for phi, f in zip(phis, fs, strict=True):
+        if how == "zero" and not np.isfinite(f):
+            f = 0.0
+        elif how != "no_skip" and not np.isfinite(f):
+            continue
+        a = (theta - phi) % n_a if how == "flip" else (phi - theta) % n_a
+        ll = norm.logpdf(f, mu[:, a], sigma[:, a])
         with np.errstate(all="ignore"):
-            p = np.exp(lp)
-            return np.log(p / p.sum())
-    return lp
+            if how == "probability":
+                p = p * np.exp(ll)
+                p = p / p.sum()
+                continue
+            log_b = log_b + ll + (log_prior if how == "prior_each_step" else 0.0)
+            log_b = log_b - logsumexp(log_b)
+    return p if how == "probability" else np.exp(log_b)
 
 
-_NB_PAPER_MISTAKES = [
+_NB_FILTER_MISTAKES = [
+    Mistake(
+        "start from the given prior, log p(o, theta), not from the uniform belief.",
+        lambda *args: _nb_filter(*args, how="uniform"),
+    ),
+    Mistake(
+        "a view whose response is nan has no image: skip it (np.isfinite(f)); a nan is not a response "
+        "of 0.",
+        lambda *args: _nb_filter(*args, how="zero"),
+    ),
+    Mistake(
+        "a view whose response is nan has no image: skip it (np.isfinite(f)); adding its log density "
+        "makes every state nan.",
+        lambda *args: _nb_filter(*args, how="no_skip"),
+    ),
+    Mistake(
+        "the prior enters once, at the start (eq. 2); adding log p(o, theta) at every update counts it "
+        "once per view.",
+        lambda *args: _nb_filter(*args, how="prior_each_step"),
+    ),
     Mistake(
         "the detector sees the relative azimuth a = (phi - theta) mod A from robot azimuth phi; you "
         "used (theta - phi) mod A.",
-        lambda lb, mu, sd, f, phi: _nb_paper(lb, mu, sd, f, phi, flip=True),
+        lambda *args: _nb_filter(*args, how="flip"),
     ),
     Mistake(
-        "the belief must be normalised over all states (o, theta): subtract logsumexp of the whole "
-        "array (the denominator of eq. 2).",
-        lambda lb, mu, sd, f, phi: _nb_paper(lb, mu, sd, f, phi, normalise=None),
-    ),
-    Mistake(
-        "normalise over the joint state (o, theta), not within each class: the classes compete too.",
-        lambda lb, mu, sd, f, phi: _nb_paper(lb, mu, sd, f, phi, normalise="class"),
-    ),
-    Mistake(
-        "exp() of log densities of a few thousand nats below zero underflows to 0, and 0 / 0 is NaN: "
-        "normalise in log space, log b - logsumexp(log b) (scipy.special.logsumexp).",
-        lambda lb, mu, sd, f, phi: _nb_paper(lb, mu, sd, f, phi, normalise="probability"),
-    ),
-    Mistake(
-        "sigma is a standard deviation: N(f; mu, sigma) (scipy's `scale` is the sd), not a variance.",
-        lambda lb, mu, sd, f, phi: _nb_paper(lb, mu, sd, f, phi, scale=np.square),
+        "exp() of log densities hundreds of nats below zero underflows to 0, and 0 / 0 is nan: keep "
+        "the belief in log space and normalise with logsumexp; exponentiate only at the end.",
+        lambda *args: _nb_filter(*args, how="probability"),
     ),
 ]
 
 
 @exercise(
     "7.1",
-    "Eq. 3, one response at a time",
+    "A prior of your own, and a view that never came",
     "easy",
-    reference=lambda: (_nb_paper_ref,),
-    wrong=lambda: [(m.fn,) for m in _NB_PAPER_MISTAKES],
+    reference=lambda: (_nb_filter_ref,),
+    wrong=lambda: [(m.fn,) for m in _NB_FILTER_MISTAKES],
 )
-def check_7_1(nb_update) -> str:
+def check_7_1(nb_filter) -> str:
     """Check exercise 7.1.
 
-    Compares ``nb_update(log_belief, mu, sigma, f, phi)`` against
-    :func:`scrppl.belief.naive_bayes_update` with the paper's model (one draw, ``tau = 0``).
+    Compares ``nb_filter(prior, mu, sigma, phis, fs) -> p(o, theta | F)`` against
+    :func:`scrppl.belief.naive_bayes_init` with the prior and :func:`~scrppl.belief.naive_bayes_update`
+    for every view with a finite response (the paper's model: one draw, ``tau = 0``).
     """
     n = check_function(
-        nb_update,
-        _nb_paper_ref,
-        _nb_paper_cases(),
-        name="nb_update(log_belief, mu, sigma, f, phi)",
+        nb_filter,
+        _nb_filter_ref,
+        _nb_filter_cases(),
+        name="nb_filter(prior, mu, sigma, phis, fs)",
         rtol=1e-4,
-        atol=2e-3,
-        mistakes=_NB_PAPER_MISTAKES,
-        hint="for every state (o, theta): a = (phi - theta) mod A, add log N(f; mu[o, a], sigma[o, a]) "
-        "to log_belief[o, theta], then subtract the logsumexp over all states.",
+        atol=2e-4,
+        mistakes=_NB_FILTER_MISTAKES,
+        hint="log_b = log(prior); for each (phi, f) with a finite f: a = (phi - theta) mod A, "
+        "log_b += log N(f; mu[o, a], sigma[o, a]), log_b -= logsumexp(log_b); return exp(log_b).",
+        convert=lambda x: np.asarray(x, float),
     )
-    return f"agrees with scrppl.belief.naive_bayes_update on {n} inputs"
+    return f"agrees with scrppl.belief.naive_bayes_init and naive_bayes_update on {n} inputs"
 
 
 # -- 7.2 marginals and entropy ----------------------------------------------------------------------
@@ -554,7 +599,7 @@ _KALMAN_MISTAKES = [
         lambda *args: _kalman(*args, how="noise_only"),
     ),
     Mistake(
-        "the gain is K = v / (v + sigma^2): the share of the predictive variance that is due to u "
+        "the gain is g = v / (v + sigma^2): the share of the predictive variance that is due to u "
         "(with v = 0 nothing is learned about u).",
         lambda *args: _kalman(*args, how="gain"),
     ),
@@ -586,8 +631,116 @@ def check_7_4(kalman_step) -> str:
         rtol=1e-4,
         atol=1e-5,
         mistakes=_KALMAN_MISTAKES,
-        hint="with the old m and v: log_ev + log N(f; mu + m, v + sigma2); K = v / (v + sigma2); "
-        "m + K (f - mu - m); (1 - K) v. Return the three as a tuple.",
+        hint="with the old m and v: log_ev + log N(f; mu + m, v + sigma2); g = v / (v + sigma2); "
+        "m + g (f - mu - m); (1 - g) v. Return the three as a tuple.",
         convert=_as_tuple,
     )
     return f"agrees with scrppl.belief.instance_update on {n} inputs"
+
+
+# -- 7.5 a turntable: the prediction step -----------------------------------------------------------
+def turntable_predict(belief, p_turn):
+    """The prediction step for an object on a turntable (the reference of exercise 7.5).
+
+    Between two images the turntable turns the object by one azimuth bin, ``theta -> (theta + 1) mod A``,
+    with probability ``p_turn``, and leaves it with probability ``1 - p_turn``; the class never changes.
+    So ``b'(o, theta) = (1 - p_turn) b(o, theta) + p_turn b(o, (theta - 1) mod A)``. The library has no
+    prediction step (its state is static, as in the paper), hence this reference.
+
+    Parameters
+    ----------
+    belief
+        ``p(o, theta | F)``, probabilities of shape ``(O, A)``.
+    p_turn
+        Probability that the object turns by one bin before the next image.
+    """
+    b = np.asarray(belief, float)
+    return (1.0 - p_turn) * b + p_turn * np.roll(b, 1, axis=-1)
+
+
+def _turntable_cases() -> list[Case]:
+    rng = np.random.default_rng(75)
+    point = np.zeros((2, 8))
+    point[1, 7] = 1.0
+    return [
+        Case(
+            (rng.dirichlet(np.ones(16)).reshape(2, 8), 0.0),
+            "p_turn = 0: the object never turns (the paper's static object)",
+        ),
+        Case(
+            (rng.dirichlet(np.ones(16)).reshape(2, 8), 1.0),
+            "p_turn = 1: the object turns by one bin before every image",
+        ),
+        Case((rng.dirichlet(np.ones(16)).reshape(2, 8), 0.3), "p_turn = 0.3, O = 2, A = 8"),
+        Case(
+            (point, 0.8),
+            "a point mass at (present, theta = 7), p_turn = 0.8: the last bin turns into bin 0",
+        ),
+        Case((rng.dirichlet(np.ones(18)).reshape(3, 6), 0.5), "p_turn = 0.5, O = 3 classes, A = 6"),
+    ]
+
+
+def _turntable(belief, p_turn, how=""):
+    b = np.asarray(belief, float)
+    if how == "backwards":
+        turned = np.roll(b, -1, axis=-1)
+    elif how == "class_axis":
+        turned = np.roll(b, 1, axis=0)
+    elif how == "no_wrap":
+        turned = np.concatenate([np.zeros_like(b[:, :1]), b[:, :-1]], axis=1)
+    else:
+        turned = np.roll(b, 1, axis=-1)
+    if how == "always":
+        return turned
+    return (1.0 - p_turn) * b + p_turn * turned
+
+
+_TURNTABLE_MISTAKES = [
+    Mistake(
+        "the object turns from theta to theta + 1, so the new probability of pose theta comes from "
+        "theta - 1: np.roll(b, 1, axis=-1), not np.roll(b, -1, ...).",
+        lambda b, p: _turntable(b, p, "backwards"),
+    ),
+    Mistake(
+        "the turntable turns the pose, the last axis; the class (axis 0) never changes.",
+        lambda b, p: _turntable(b, p, "class_axis"),
+    ),
+    Mistake(
+        "the turntable turns only with probability p_turn: mix the turned belief and the unturned "
+        "one, (1 - p_turn) b + p_turn turned.",
+        lambda b, p: _turntable(b, p, "always"),
+    ),
+    Mistake(
+        "azimuth is circular: the object at the last bin, A - 1, turns into bin 0 (np.roll wraps "
+        "around); probability must not be lost.",
+        lambda b, p: _turntable(b, p, "no_wrap"),
+    ),
+]
+
+
+@exercise(
+    "7.5",
+    "A turntable: the prediction step",
+    "medium",
+    reference=lambda: (turntable_predict,),
+    wrong=lambda: [(m.fn,) for m in _TURNTABLE_MISTAKES],
+)
+def check_7_5(predict_turntable) -> str:
+    """Check exercise 7.5.
+
+    Compares ``predict_turntable(belief, p_turn)`` against :func:`turntable_predict` (the library has
+    no prediction step: the paper's state is static).
+    """
+    n = check_function(
+        predict_turntable,
+        turntable_predict,
+        _turntable_cases(),
+        name="predict_turntable(belief, p_turn)",
+        rtol=1e-9,
+        atol=1e-12,
+        mistakes=_TURNTABLE_MISTAKES,
+        hint="b'(o, theta) = (1 - p_turn) b(o, theta) + p_turn b(o, theta - 1 mod A): "
+        "(1 - p_turn) * b + p_turn * np.roll(b, 1, axis=-1).",
+        convert=lambda x: np.asarray(x, float),
+    )
+    return f"agrees with the turntable's prediction step on {n} beliefs"

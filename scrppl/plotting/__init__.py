@@ -4,14 +4,17 @@
 * :mod:`scrppl.plotting.detectors` -- Fig. 1 (response over azimuth with detections) and response summaries;
 * :mod:`scrppl.plotting.models` -- Figs. 2-3 (polar viewpoint detection functions), MCMC trace, forest and
   rank plots, instance effects, prior and posterior predictive checks;
-* :mod:`scrppl.plotting.belief` -- Fig. 4 (posterior evolution), Fig. 5 (planner comparison), calibration,
-  repeated views, expected entropy per candidate view and the sampling error of eq. 5;
+* :mod:`scrppl.plotting.belief` -- Fig. 4 (posterior evolution, also animated for an offline page), Fig. 5
+  (planner comparison), calibration, repeated views, expected entropy per candidate view and the sampling
+  error of eq. 5;
 * :mod:`scrppl.plotting.kway` -- K-way recognition: accuracy against views, confusion matrices;
 * :mod:`scrppl.plotting.sweep` -- the difficulty sweep: views saved by planning against detector quality.
 """
 
 from scrppl.plotting._save import save_figure
 from scrppl.plotting.belief import (
+    animate_posterior_evolution,
+    animation_html,
     plot_calibration,
     plot_expected_entropies,
     plot_planner_comparison,
@@ -62,6 +65,8 @@ __all__ = [
     "plot_predictive_densities",
     "plot_predictive_sample_check",
     "plot_posterior_evolution",
+    "animate_posterior_evolution",
+    "animation_html",
     "plot_planner_comparison",
     "plot_calibration",
     "plot_repeated_view",

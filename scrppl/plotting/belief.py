@@ -1,6 +1,7 @@
 """Figures of sequential recognition: the evolving posterior (Fig. 4), planner curves (Fig. 5), calibration.
 
-Figure numbers follow Meger et al. (2010).
+Figure numbers follow Meger et al. (2010). :func:`animate_posterior_evolution` plays Fig. 4 one view at a
+time; :func:`animation_html` turns it into self-contained HTML for an offline page.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ __all__ = [
     "plot_expected_entropies",
     "plot_sampling_error",
     "plot_step_comparison",
+    "animate_posterior_evolution",
+    "animation_html",
     "save_study_figures",
 ]
 
@@ -503,6 +506,140 @@ def plot_step_comparison(
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def animate_posterior_evolution(
+    beliefs,
+    true_pose: int,
+    robot_azimuths: Sequence[int | None],
+    *,
+    titles: Sequence[str] | None = None,
+    label: str = "target",
+    interval_ms: int = 1000,
+    size: float = 3.6,
+    dpi: int = 80,
+):
+    """Fig. 4 as an animation: one polar panel whose frame ``k`` is the belief after ``k`` views.
+
+    The same drawing as :func:`plot_posterior_evolution` (angle: pose ``theta``; radius:
+    ``p(o = present, theta | F)``, solid, and ``p(o = absent, theta | F)``, dashed grey; magenta ``x``:
+    the true pose; blue circle: the robot's azimuth for that frame's image), on one radial scale for
+    every frame so that frames can be compared. Each frame's title gives ``p(present | F)``.
+
+    Parameters
+    ----------
+    beliefs
+        Joint beliefs ``p(o, theta | F)`` (probabilities), shape ``(K, O, A)``; frame 0 is typically the
+        prior.
+    true_pose
+        The hidden pose ``theta*`` in azimuth bins.
+    robot_azimuths
+        Robot azimuth (bins) per frame; ``None`` for no marker (the prior).
+    titles
+        Frame titles (default ``prior``, ``after 1 view``, ...).
+    label
+        Name of the target category for the legend.
+    interval_ms
+        Time between frames when played.
+    size, dpi
+        Figure size in inches (square) and resolution of the frames: keep both small, every frame is
+        embedded in the page as a PNG.
+
+    Returns
+    -------
+    matplotlib.animation.FuncAnimation
+        Its figure is already released from pyplot (a notebook shows no extra static copy); render it
+        with :func:`animation_html`.
+    """
+    from matplotlib.animation import FuncAnimation
+
+    b = np.asarray(beliefs, dtype=float)
+    if b.ndim != 3 or b.shape[1] < 2:
+        raise ValueError(f"beliefs must have shape (K, O, A) with O >= 2, got {b.shape}")
+    n_k, _, n_a = b.shape
+    if len(robot_azimuths) != n_k:
+        raise ValueError(f"need one robot azimuth per frame ({n_k}), got {len(robot_azimuths)}")
+    if titles is None:
+        titles = ["prior"] + [f"after {k} view{'s' if k > 1 else ''}" for k in range(1, n_k)]
+    deg = 360.0 / n_a
+    angles = np.deg2rad(np.arange(n_a + 1) * deg)  # closed curve
+    rmax = max(float(b.max()) * 1.15, 1e-3)
+    fig = plt.figure(figsize=(size, size + 0.5), dpi=dpi, facecolor="white")
+    ax = fig.add_axes((0.12, 0.2, 0.76, 0.66), projection="polar")
+    (present,) = ax.plot([], [], "-o", color="C0", ms=3, label=f"{label} present")
+    (absent,) = ax.plot([], [], "--", color="0.5", lw=1, label=f"{label} absent")
+    ax.plot(
+        np.deg2rad(true_pose * deg),
+        rmax * 0.9,
+        "x",
+        color="magenta",
+        ms=10,
+        mew=2,
+        label="true pose",
+    )
+    (robot,) = ax.plot([], [], "o", mfc="none", mec="blue", ms=10, mew=2, label="robot")
+    ax.set_ylim(0, rmax)
+    ax.yaxis.set_major_locator(MaxNLocator(3))
+    ax.set_xticks(np.deg2rad(np.arange(n_a) * deg))
+    ax.tick_params(labelsize=7)
+    title = ax.set_title("", fontsize=9)
+    fig.legend(loc="lower center", ncol=2, fontsize=7, frameon=False)
+
+    def draw(k):
+        present.set_data(angles, np.r_[b[k, 1], b[k, 1, :1]])
+        absent.set_data(angles, np.r_[b[k, 0], b[k, 0, :1]])
+        phi = robot_azimuths[k]
+        robot.set_data(
+            [np.deg2rad(phi * deg)] if phi is not None else [],
+            [rmax * 0.9] if phi is not None else [],
+        )
+        title.set_text(f"{titles[k]}: p(present) = {b[k, 1].sum():.3f}")
+        return present, absent, robot, title
+
+    animation = FuncAnimation(fig, draw, frames=n_k, interval=interval_ms, blit=False)
+    plt.close(fig)
+    return animation
+
+
+# the player's icons come from a remote Font Awesome stylesheet: replaced by plain characters
+_PLAYER_ICONS = {
+    "fa fa-minus": "&minus;",
+    "fa fa-fast-backward": "&laquo;",
+    "fa fa-step-backward": "&lsaquo;",
+    "fa fa-play fa-flip-horizontal": "&#x25C0;",
+    "fa fa-pause": "&#x2016;",
+    "fa fa-play": "&#x25B6;",
+    "fa fa-step-forward": "&rsaquo;",
+    "fa fa-fast-forward": "&raquo;",
+    "fa fa-plus": "+",
+}
+
+
+def animation_html(animation, *, default_mode: str = "once") -> str:
+    """Self-contained HTML for a Matplotlib animation: frames as inline PNGs, an inline JS player.
+
+    ``FuncAnimation.to_jshtml`` embeds every frame, but links a remote stylesheet for its buttons'
+    icons; this removes the link and writes the icons as characters, so the page loads nothing from
+    the network (an offline book). Show the result with ``IPython.display.HTML``.
+
+    Parameters
+    ----------
+    animation
+        A ``matplotlib.animation.Animation`` (e.g. from :func:`animate_posterior_evolution`).
+    default_mode
+        ``"once"``, ``"loop"`` or ``"reflect"``: what the player does at the last frame.
+    """
+    import re
+
+    html = animation.to_jshtml(default_mode=default_mode)
+    html = re.sub(r"<link[^>]*href=[\"']https?://[^>]*>", "", html)
+    for icon, text in _PLAYER_ICONS.items():
+        html = html.replace(f'<i class="{icon}"></i>', text)
+    if re.search(r"(?:src|href)=[\"']https?://", html) or 'class="fa ' in html:
+        raise RuntimeError(
+            "matplotlib's animation player changed: it still refers to remote assets"
+        )
+    return html
 
 
 def save_study_figures(study, fig_dir) -> list:
