@@ -218,6 +218,11 @@ def main(argv=None) -> int:
         runs[name] = folder
     pages = [Path(x) for x in args.pages] if args.pages else sorted((ROOT / "book" / "chapters").glob("*.md"))
 
+    # the kernels import NumPy before scrppl: give them the portable numerics of the scrppl commands now
+    # (inherited through the environment), as scripts/build-book.sh does
+    from scrppl.numerics import apply_portable_settings
+
+    apply_portable_settings()
     results: dict[str, list[dict]] = {}
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
