@@ -306,9 +306,9 @@ def _choice_inputs():
     visited[1, 5, 1] = True  # detector 1 already ran at azimuth 5 (detector 0 may still run there)
     available = np.ones_like(visited)
     available[:, 0, 1] = False  # no image from azimuth 0 at this height
-    out.append(("two detectors after two views, costs (1, 2), beta = 0.1", two, b2,
+    out.append(("two detectors after two views, costs (1, 2), chi = 0.1", two, b2,
                 [4, 1, 0], visited, available, [1.0, 2.0], 0.1))  # fmt: skip
-    out.append(("the same, with a large beta = 2", two, b2, [4, 1, 0], visited, available,
+    out.append(("the same, with a large chi = 2", two, b2, [4, 1, 0], visited, available,
                 [1.0, 2.0], 2.0))  # fmt: skip
     return out
 
@@ -331,7 +331,7 @@ def _choice_first():
     det = _detectors()
     two = (det[0], det[2])
     visited = np.zeros((2, 6, 2, 1), bool)
-    label = "two detectors before any view, costs (3, 1), beta = 0.05"
+    label = "two detectors before any view, costs (3, 1), chi = 0.05"
     return (label, two, fused_init("naive_bayes", two), [1, 0, 0], visited, ~visited,
             [3.0, 1.0], 0.05)  # fmt: skip
 
@@ -364,13 +364,13 @@ _SCORE_MISTAKES = [
         lambda models, belief, views, costs, lam: _entropies(models, belief, views),
     ),
     Mistake(
-        "weight the cost by cost_weight (beta, nats per unit of cost).",
+        "weight the cost by cost_weight (chi, nats per unit of cost).",
         lambda models, belief, views, costs, lam: (
             _entropies(models, belief, views) + np.asarray(costs)[None]
         ),
     ),
     Mistake(
-        "a cost makes an action *worse*: add beta * cost to the expected entropy (the planner "
+        "a cost makes an action *worse*: add chi * cost to the expected entropy (the planner "
         "minimises the score).",
         lambda models, belief, views, costs, lam: (
             _entropies(models, belief, views) - lam * np.asarray(costs)[None]
