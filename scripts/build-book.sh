@@ -35,6 +35,9 @@ else
 fi
 t_results=$(date +%s)
 
+# Every chapter shows more code than it hides (hidden cells only glue, format and assert).
+$VENV/bin/python scripts/book_code_balance.py --check
+
 bash scripts/install-mathjax.sh
 
 if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1; then
