@@ -166,9 +166,12 @@ def stages(
             (out / "responses.nc",),
             (out / "models" / "diagnostics.json",),
             takes_force=True,
-            complete=None
+            # refit when a fit failed its diagnostics (except in the quick profile) or was made by
+            # another version of the model
+            complete=(lambda: not stale_fits(out / "models"))
             if profile == "quick"
-            else lambda: not failed_fits(out / "models" / "diagnostics.json"),
+            else lambda: not failed_fits(out / "models" / "diagnostics.json")
+            and not stale_fits(out / "models"),
         ),
         Stage(
             "simulate",
@@ -311,6 +314,32 @@ def machine_description() -> dict:
     except OSError:
         pass
     return {"cores": os.cpu_count(), "cpu": model, "machine": platform.machine()}
+
+
+def stale_fits(models_dir: str | Path) -> list[str]:
+    """Saved hierarchical fits in ``models_dir`` made by another version of the model (file stems).
+
+    ``scrppl fit`` refits them (:func:`scrppl.models.study.fit_pair`); a fit stage that holds one is not
+    up to date, however new its files are.
+    """
+    import json
+
+    import h5py
+
+    from scrppl.models.io import MODEL_VERSION
+
+    stale = []
+    for path in sorted(Path(models_dir).glob("hierarchical-*.nc")):
+        try:
+            with h5py.File(path, "r") as fh:
+                meta = fh.attrs.get("meta")
+            meta = meta.decode() if isinstance(meta, bytes) else meta
+            version = json.loads(meta or "{}").get("model_version")
+        except (OSError, ValueError):
+            version = None
+        if version != MODEL_VERSION:
+            stale.append(path.stem)
+    return stale
 
 
 def failed_fits(path: str | Path) -> list[str]:

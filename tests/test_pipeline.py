@@ -108,3 +108,26 @@ def test_cpu_time_counts_this_process_and_its_ended_children():
     t0 = cpu_time()
     subprocess.run([sys.executable, "-c", "x = 0\nfor i in range(3_000_000): x += i"], check=True)
     assert cpu_time() - t0 > 0.05
+
+
+def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_path):
+    """After the model changes (MODEL_VERSION), `scrppl reproduce` must refit, not report 'up to date' and
+    then fail in the next stage on a fit it refuses to load."""
+    import h5py
+
+    from scrppl.models.io import MODEL_VERSION
+    from scrppl.pipeline import is_current, stages, stale_fits
+
+    out = tmp_path / "out"
+    models = out / "models"
+    models.mkdir(parents=True)
+    (out / "responses.nc").write_bytes(b"")
+    (models / "diagnostics.json").write_text(json.dumps({"dpm/car": {"ok": True}}))
+    for name, version in (("hierarchical-dpm-car.nc", MODEL_VERSION), ("hierarchical-dpm-bus.nc", 1)):
+        with h5py.File(models / name, "w") as fh:
+            fh.attrs["meta"] = json.dumps({"model_version": version})
+    assert stale_fits(models) == ["hierarchical-dpm-bus"]
+    fit = next(s for s in stages(tmp_path / "data", out, seed=0, profile="book") if s.name == "fit")
+    assert not is_current(fit)
+    (models / "hierarchical-dpm-bus.nc").unlink()
+    assert is_current(fit)

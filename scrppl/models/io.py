@@ -51,8 +51,8 @@ KINDS = ("gaussian", "hierarchical")
 #: Version of the hierarchical model, saved with every fit (``meta["model_version"]``); a saved fit of
 #: another version is refitted by ``scrppl fit`` and refused by :func:`load_response_model`
 #: (2: noise floor for counts, per-class parameterisation; 3: a noise floor of 5 % of the responses' sd
-#: for every transform).
-MODEL_VERSION = 3
+#: for every transform; 4: the noise-scale spread's prior HalfNormal(0.25), was 0.5).
+MODEL_VERSION = 4
 
 
 def is_current_version(tree: xr.DataTree) -> bool:
