@@ -322,8 +322,11 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     calls, lengths = [], []
     n_bad = [1]
 
+    n_args = []
+
     def fake_run_nuts(key, model, args, config, progress=True, desc=""):
         calls.append(config.target_accept_prob)
+        n_args.append(len(args))
         lengths.append((config.num_warmup, config.num_samples))
         samples = {k: np.asarray(v).reshape((4, 500) + v.shape[1:]) for k, v in prior.items()}
         if len(calls) <= n_bad[0]:  # chains stuck in different places: R-hat fails
@@ -366,7 +369,7 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
         calls.clear(), lengths.clear()
         n_bad[0] = bad
         tree = fit_hierarchical(
-            key, data, meta, config, noncentered=start, progress=False, warn=False
+            key, data, meta, config, noncentered=start, pool_noise=False, progress=False, warn=False
         )
         assert calls == [config.target_accept_prob] + [fit_module.RETRY_ACCEPT] * (n_calls - 1)
         n_short = n_start + 1  # the attempts before the longer chains
@@ -384,7 +387,15 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
         )
     calls.clear()
     fit_hierarchical(
-        key, data, meta, config, noncentered=centred, retry_longer=None, progress=False, warn=False
+        key,
+        data,
+        meta,
+        config,
+        noncentered=centred,
+        retry_longer=None,
+        pool_noise=False,
+        progress=False,
+        warn=False,
     )
     assert len(calls) == 3
     # a fit already fully non-centred goes straight from the 0.99 retry to longer chains
@@ -392,8 +403,19 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     n_bad[0] = 3
     thin = choose_noncentered(data)
     assert sorted(thin) == sorted(fit_module.RETRY_NONCENTERED)
-    fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
+    fit_hierarchical(
+        key, data, meta, config, noncentered=thin, pool_noise=False, progress=False, warn=False
+    )
     assert lengths == [(10, 500), (10, 500), (10 * k, 500 * k)]
+    # the last resort: one noise sd per class, with the longer chains, passed to the model as a mask
+    calls.clear(), lengths.clear(), n_args.clear()
+    n_bad[0] = 3
+    tree = fit_hierarchical(key, data, meta, config, noncentered=thin, progress=False, warn=False)
+    attempts = json.loads(tree.attrs["meta"])["attempts"]
+    assert [a["pooled_noise"] for a in attempts] == [[], [], [], [0, 1]]
+    assert [a["ok"] for a in attempts] == [False, False, False, True]
+    assert lengths[-1] == (10 * k, 500 * k) and n_args == [8, 8, 8, 9]
+    assert json.loads(tree.attrs["meta"])["pooled_noise"] == [0, 1]
     # a nearly noiseless cell: the first attempt already runs at the retry's target, and a failure goes
     # on to the next remedy (here longer chains) instead of repeating 0.99
     quiet = np.asarray(data.y).copy()
@@ -409,3 +431,21 @@ def test_a_failed_fit_is_refitted_at_a_higher_acceptance_target_then_noncentred_
     n_bad[0] = 0
     fit_hierarchical(key, quiet_data, meta, config, choose_accept=False, progress=False)
     assert calls == [config.target_accept_prob]
+
+
+def test_azimuth_noise_mask_gives_a_class_one_noise_sd(key):
+    """``azimuth_noise`` 0 for a class: its noise sd is the same at every azimuth (the last resort of the
+    retry ladder); the other class keeps its azimuth-varying noise."""
+    from numpyro.handlers import seed, substitute, trace
+
+    data = make_view_data(np.random.default_rng(1).normal(size=(6, 8, 1, 1)), [1, 1, 1, 0, 0, 0])
+    args = model_args(data)
+    model = make_model(True, choose_noncentered(data))
+    tr = trace(seed(model, key)).get_trace(*args)
+    contrast = {"log_sigma_contrast": (np.full((2, 7), 0.3) * np.arange(1, 8)).astype(np.float32)}
+    for mask, flat in (((1.0, 1.0), ()), ((1.0, 0.0), (1,)), ((0.0, 0.0), (0, 1))):
+        sub = substitute(seed(make_model(True, ()), key), data=contrast)
+        sigma = np.asarray(trace(sub).get_trace(*args, np.asarray(mask, np.float32))["sigma"]["value"])
+        for cls in (0, 1):
+            assert (np.ptp(sigma[cls]) < 1e-6) == (cls in flat), (mask, cls)
+    assert "sigma" in tr

@@ -25,3 +25,43 @@ def test_failed_fits_only_of_the_pairs_asked_for():
         "sift/car": {"ok": False, "failures": ["ESS"]},
     }
     assert failed_fits(diag, ["dpm"], ["car", "shoe"]) == {"dpm/car": ["R-hat"]}
+
+
+@pytest.mark.slow
+def test_a_saved_fit_that_failed_its_diagnostics_is_refitted_not_reused(tmp_path, monkeypatch):
+    """fit_pair reuses a saved hierarchical fit only if it passed its diagnostics: a failed one is
+    refitted (a changed retry ladder may pass it), a passed one is loaded."""
+    import json
+
+    import jax
+
+    import scrppl.models.study as study
+    from scrppl.models.mcmc import SamplerConfig
+    from scrppl.models.simulate import random_true_model, simulate_response_table
+    from scrppl.views import ViewGrid
+
+    grid = ViewGrid(8, (10.0,), (1.0,))
+    key = jax.random.key(3)
+    truth = random_true_model(key, grid)
+    table = simulate_response_table(
+        key, {("dpm", "a"): truth}, ["a", "b"], 6, grid, {"train": 1, "fit": 3, "test": 2}
+    )
+    real = study.fit_hierarchical
+    calls, verdict = [], [False]
+
+    def fit(*args, **kwargs):
+        calls.append(1)
+        tree = real(*args, **kwargs)
+        report = json.loads(tree.attrs["diagnostics"])
+        tree.attrs["diagnostics"] = json.dumps(dict(report, ok=verdict[0]))
+        return tree
+
+    monkeypatch.setattr(study, "fit_hierarchical", fit)
+    config = SamplerConfig(num_warmup=100, num_samples=100, num_chains=2, chunk=100)
+    for _ in range(2):  # saved as failed: refitted the second time
+        study.fit_pair(key, table, tmp_path, "dpm", "a", config, reuse_since=0.0, progress=False)
+    assert len(calls) == 2
+    verdict[0] = True
+    study.fit_pair(key, table, tmp_path, "dpm", "a", config, reuse_since=0.0, progress=False)
+    study.fit_pair(key, table, tmp_path, "dpm", "a", config, reuse_since=0.0, progress=False)
+    assert len(calls) == 3  # saved as passed: loaded

@@ -251,7 +251,16 @@ def sum_to_zero_basis(n: int) -> np.ndarray:
 
 
 def viewpoint_model(
-    y, observed, o, neg_onehot, loc, scale, floor=0.0, stats=None, marginal: bool = True
+    y,
+    observed,
+    o,
+    neg_onehot,
+    loc,
+    scale,
+    floor=0.0,
+    stats=None,
+    azimuth_noise=None,
+    marginal: bool = True,
 ):
     """NumPyro model of one detector's responses for one target (see the module docstring).
 
@@ -275,6 +284,10 @@ def viewpoint_model(
         :func:`scrppl.models.marginal.view_stats` of the standardised responses (marginal model only):
         the likelihood is then computed from them, which is several times cheaper per gradient than
         from ``y`` (:func:`model_args` provides them).
+    azimuth_noise
+        ``(2,)`` array of 1 (a class's noise sd varies with the azimuth, the default) or 0 (one noise sd
+        for the class: the last attempt of :func:`scrppl.models.fit.fit_hierarchical`); ``None`` is every
+        class 1.
     marginal
         Integrate the instance effects out in closed form (``True``) or sample them (``False``).
     """
@@ -300,6 +313,8 @@ def viewpoint_model(
         dev = numpyro.sample(
             "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
         )
+        if azimuth_noise is not None:  # a class with one noise sd: its contrasts keep their prior only
+            dev = dev * jnp.asarray(azimuth_noise, dev.dtype)[:, None]
         log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
     sigma = jnp.sqrt(jnp.exp(2.0 * log_sigma) + (floor / scale) ** 2)
     tau = numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2]))

@@ -167,7 +167,7 @@ def fit_pair(
 
     Both are saved under ``models_dir`` (:func:`~scrppl.models.io.model_path`). A saved fit newer than
     ``reuse_since`` is loaded instead -- the hierarchical one only if it was fitted by this
-    :data:`~scrppl.models.io.MODEL_VERSION`.
+    :data:`~scrppl.models.io.MODEL_VERSION` and passed its diagnostics.
 
     Parameters
     ----------
@@ -204,6 +204,8 @@ def fit_pair(
     tree = load_posterior(hpath) if _is_current(hpath, reuse_since) else None
     if tree is not None and not is_current_version(tree):
         tree = None  # fitted by another version of the model
+    if tree is not None and not json.loads(tree.attrs.get("diagnostics", "{}")).get("ok", False):
+        tree = None  # failed its diagnostics: refit (a changed retry ladder may pass it now)
     if tree is None:
         # diagnostics are reported by the caller (fit_study collects them), hence warn=False
         tree = fit_hierarchical(key, data, meta, config, progress=progress, warn=False)
