@@ -330,3 +330,8 @@ def test_sweep_command_end_to_end_and_resumes(tmp_path, monkeypatch):
     again = json.loads((run / "sweep-summary.json").read_text())
     assert again["points_computed"] == 0
     xr.testing.assert_equal(xr.open_dataset(run / "sweep.nc").load(), first)
+    # after the viewpoint model changes, the cached points are recomputed
+    for module in ("scrppl.models.io", "scrppl.models.fit"):
+        monkeypatch.setattr(f"{module}.MODEL_VERSION", 10**6)
+    assert main(argv) == 0
+    assert json.loads((run / "sweep-summary.json").read_text())["points_computed"] == 2

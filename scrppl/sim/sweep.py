@@ -493,8 +493,12 @@ def run_sweep(
     for level in levels:
         level_config(config, level)  # ValueError naming a level outside [0, 2]
     detectors = load_run_detectors(run_dir, families, targets)
+    from scrppl.models.io import MODEL_VERSION
+
     fingerprint = {
         "seed": int(seed),
+        # a point fitted by another version of the viewpoint model is recomputed
+        "model_version": MODEL_VERSION,
         "settings": dataclasses.asdict(settings),
         "config": {k: v for k, v in config.to_dict().items() if k != "domain"},
         "detectors": {
