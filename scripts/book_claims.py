@@ -193,7 +193,7 @@ def run_page(nb, claims, results: Path, log: Path, timeout: int) -> list[dict]:
 
 def _run_info(folder: Path) -> dict:
     info = json.loads((folder / "run.json").read_text())
-    return {k: info.get(k) for k in ("profile", "seed", "preset")}
+    return {k: info.get(k) for k in ("profile", "seed", "preset", "numerics")}
 
 
 def main(argv=None) -> int:
