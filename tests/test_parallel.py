@@ -9,6 +9,7 @@ through ``scrppl detect``.
 import hashlib
 import os
 import signal
+import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -393,3 +394,21 @@ def test_reproduce_passes_the_scheduler_to_the_stages_that_use_it(tmp_path):
     assert with_flag == {"detect", "fit", "simulate"}
     # nothing else changes: the same outputs are checked for being current
     assert [s.outputs for s in chain] == [s.outputs for s in plain]
+
+
+def test_asking_for_host_devices_after_jax_started_leaves_the_environment_true():
+    """A command run in a session that already used JAX cannot change its device count; XLA_FLAGS must
+    keep saying what JAX runs with, since workers started later copy it (worker_env)."""
+    code = (
+        "import os\n"
+        "os.environ['XLA_FLAGS'] = '--xla_force_host_platform_device_count=2'\n"
+        "import jax, re\n"
+        "from scrppl.cli.fit import _configure_host_devices\n"
+        "from scrppl.parallel import worker_env\n"
+        "jax.numpy.zeros(1)\n"
+        "_configure_host_devices(4)\n"
+        "n = int(re.search(r'device_count=(\\d+)', worker_env()['XLA_FLAGS']).group(1))\n"
+        "print(n, jax.local_device_count())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["2", "2"]

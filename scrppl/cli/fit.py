@@ -59,10 +59,24 @@ def register(subparsers) -> None:
 
 
 def _configure_host_devices(n: int) -> None:
-    """Ask XLA for ``n`` CPU devices (only effective before JAX initialises its backend)."""
+    """Ask XLA for ``n`` CPU devices before JAX initialises its backend.
+
+    Once the backend runs (a command called from a Python session that already used JAX), the request
+    could no longer take effect, and writing it into ``XLA_FLAGS`` anyway would make the environment lie
+    about the devices this process has -- Dask workers started afterwards copy ``XLA_FLAGS``
+    (:func:`scrppl.parallel.worker_env`) and would run a different device count from the client. Then
+    nothing is changed.
+    """
     import numpyro
 
-    numpyro.set_host_device_count(n)
+    try:
+        from jax._src.xla_bridge import backends_are_initialized
+    except ImportError:  # pragma: no cover - a JAX without it: ask anyway, as before
+        started = False
+    else:
+        started = backends_are_initialized()
+    if not started:
+        numpyro.set_host_device_count(n)
 
 
 def _names(text: str | None) -> list[str] | None:

@@ -137,9 +137,9 @@ def run_config(args: argparse.Namespace):
 def handler(args: argparse.Namespace) -> int:
     """Run ``scrppl sweep``; returns the exit status."""
     settings = dict(PROFILE_SETTINGS[args.profile])
-    import numpyro
+    from scrppl.cli.fit import _configure_host_devices
 
-    numpyro.set_host_device_count(settings["chains"])  # one per chain on every machine (scrppl.cli.fit)
+    _configure_host_devices(settings["chains"])  # one per chain on every machine (scrppl.cli.fit)
     import matplotlib
 
     matplotlib.use("Agg")
