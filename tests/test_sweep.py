@@ -257,7 +257,7 @@ def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred(tmp_path):
+def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred_then_with_pooled_noise(tmp_path):
     import dataclasses
 
     from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED
@@ -270,7 +270,7 @@ def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred(tmp_path):
     # 2 chains x 60 draws cannot reach a bulk ESS of 400: every attempt fails its gates
     for retry_longer, expected in (
         (1, [(first, 60)]),
-        (2, [(first, 60), (RETRY_ACCEPT, 60), (RETRY_ACCEPT, 120)]),
+        (2, [(first, 60), (RETRY_ACCEPT, 60), (RETRY_ACCEPT, 120), (RETRY_ACCEPT, 120)]),
     ):
         settings = dataclasses.replace(TINY, retry_longer=retry_longer)
         models = tmp_path / f"retry-{retry_longer}"
@@ -281,6 +281,8 @@ def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred(tmp_path):
         assert [(a["target_accept_prob"], a["num_samples"]) for a in attempts] == expected
         assert [a["num_warmup"] for a in attempts] == [n for _, n in expected]
         assert all(sorted(a["noncentered"]) == sorted(RETRY_NONCENTERED) for a in attempts)
+        # the ladder's last resort (scrppl.models.fit): one noise sd per class, after everything else
+        assert [bool(a["pooled_noise"]) for a in attempts] == [i == 3 for i in range(len(expected))]
 
 
 @pytest.mark.slow

@@ -336,7 +336,7 @@ def run_point(
 
     ``key`` is split into the keys of the fit, the trials and the planners (the same planner key for
     both planners: paired trials). The hierarchical model is fitted on the fit split as
-    :func:`scrppl.models.study.fit_pair` fits it, fully non-centred and with at most two retries
+    :func:`scrppl.models.study.fit_pair` fits it, fully non-centred and with at most three retries
     (``settings.retry_longer``; a fit failing its diagnostics after them is recorded, not rerun), and
     saved in ``models_dir``; it is always fitted anew: the point, not the fit,
     is the unit :func:`run_sweep` caches.
