@@ -13,6 +13,9 @@ set of candidate robot views, and returns the view to visit next.
   the quadrature error (:func:`quadrature_expected_entropy` states it).
 * ``"plug_in"`` -- updates with the *expected* response only. The paper notes that this gives a biased
   estimate of the entropy; it is kept to demonstrate that bias.
+* ``"confident"`` -- not an entropy planner: the view that minimises the expected *views to confidence*
+  (``p(true class) > 0.95``), by depth-limited expectimax with sampled responses
+  (``scrppl.confident``; ``n_samples`` responses per level).
 
 Objectives (:data:`scrppl.belief.OBJECTIVES`): ``"joint"`` ``H(o, theta)`` (eq. 5), ``"class"`` ``H(o)``
 (the quantity of Fig. 5 right) and ``"pose"`` ``H(theta)``.
@@ -80,7 +83,7 @@ __all__ = [
 ]
 
 #: Planner names accepted by :func:`choose_view`.
-PLANNERS = ("random", "sampled", "quadrature", "plug_in")
+PLANNERS = ("random", "sampled", "quadrature", "plug_in", "confident")
 #: Planners that score candidates by an expected entropy (all but ``"random"``).
 ENTROPY_PLANNERS = ("sampled", "quadrature", "plug_in")
 #: Candidate-set modes.
@@ -628,7 +631,8 @@ def choose_view(
     found
         ``False`` when no candidate was left (then ``view`` is meaningless and must not be observed).
     scores
-        Score of each candidate ``(C,)`` (``+inf`` for invalid ones; zeros for ``"random"``).
+        Score of each candidate ``(C,)`` (``+inf`` for invalid ones; zeros for ``"random"``; expected
+        remaining views, not nats, for ``"confident"``).
     """
     # values here, once per call; the shapes of the belief and the masks (known while tracing) are
     # checked when the compiled function is traced, which costs nothing on later calls
@@ -649,6 +653,13 @@ def _choose_view(
     if config.planner == "random":
         idx, found = random_unseen_view(key, valid)
         return views[idx], found, jnp.where(valid, 0.0, jnp.inf)
+    if config.planner == "confident":
+        from scrppl.confident import _confident_scores  # here: scrppl.confident imports this module
+
+        h = _confident_scores(key, model, belief, views, valid, config)
+        cost = travel_cost(views, current, motion_cost, model.mu.shape[2])
+        idx, found, scores = select_view(h, cost, valid)
+        return views[idx], found, scores
     n_c = views.shape[0]
     if max_candidates is not None and max_candidates < n_c:
         # evaluate only the first `max_candidates` valid candidates and scatter the values back

@@ -1,0 +1,516 @@
+"""Looking that pays: plan the next view for *confident* recognition, not for entropy.
+
+The paper's planner (Meger et al. 2010, eq. 5) minimises the expected posterior entropy one view ahead.
+The experiment, though, scores a trial by its *views to confidence*
+(:func:`scrppl.sim.metrics.trial_metrics`): the first ``k`` with ``p(o* | f_1..f_k) > threshold``
+(0.95), or ``K + 1`` if the belief never gets there. This module plans for that metric directly.
+
+The metric as a sum of step costs
+---------------------------------
+``T = 1 + sum_{k=1}^{K} 1[T > k]``. The planner never knows ``o*``, but given the responses so far
+``P(T > k | F_k) = sum_o p(o | F_k) alive_k(o)`` where ``alive_k(o)`` says that ``p(o | F_j) <= threshold``
+for every ``j <= k`` (had the truth been ``o``, the trial would not be confident yet; a function of the
+history, so part of the planner's information state). With the *step cost*
+``s_k = sum_o p(o | F_k) alive_k(o)``, ``E[T] = 1 + E[sum_{k=1}^{K} s_k]`` under the model, and the best
+adaptive policy minimises the expected sum of step costs over the remaining views: a finite-horizon
+POMDP whose belief is the filter's (either filter of :mod:`scrppl.belief`) plus the ``O`` flags.
+
+Depth-limited expectimax
+------------------------
+:func:`expected_remaining_views` scores each candidate next view by expectimax over the next ``depth``
+views: expectation over the next response under the filter's own posterior predictive
+(:func:`scrppl.belief.predictive_mixture`), minimum over the next views, recursively. The expectation is
+either
+
+* ``"quadrature"`` -- Gauss-Hermite nodes per mixture component (``order`` per component, ``N O A
+  order`` responses per view): the predictive replaced by a discrete one, exact for that discretisation;
+* ``"sampled"`` -- ``n_samples`` draws per level from the predictive (a component by inverse CDF, then
+  its Gaussian), the *same* uniforms and normals for every node of a level (common random numbers).
+
+Truncation bound. After ``depth`` views ``r`` views are left. Every later step cost is at least ``0``
+and, in expectation, at most the current ``s`` (``p(o | F)`` is a martingale and ``alive`` only switches
+off), so the remaining value lies in ``[0, r s]`` for *every* policy. Expectimax with the leaf value
+``0`` gives a lower bound on the optimal value, with ``r s`` an upper bound (the value of a policy: the
+tree, then any views). Both are returned; when ``depth`` covers all remaining views they coincide and
+equal the optimum (of the discretised model, for ``"quadrature"``). The indicator in ``alive`` makes
+the value a discontinuous function of the response, so the quadrature error itself is not bounded here
+(it shrinks slowly with ``order``).
+
+Contents
+--------
+* :func:`view_information` -- how informative each relative azimuth is about the class, from the prior.
+* :func:`step_cost` -- ``s`` and the updated ``alive`` flags from a class posterior.
+* :func:`expected_remaining_views` -- the bracket ``[lower, upper]`` of every candidate first view.
+* :func:`optimal_remaining_views` -- the bracket of the best adaptive policy from a belief.
+* :func:`choose_view_confident` -- the planner, with :func:`scrppl.planning.choose_view`'s interface; also
+  selectable as ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view` and the trial
+  runner (sampled, depth :data:`CONFIDENT_DEPTH`, ``n_samples`` draws per level, upper-bound scores).
+
+Compute grows as ``(C M)^depth`` for ``C`` candidates and ``M`` responses per view: depth 2 with
+``M = 32`` suits the experiment's setting (8 azimuths, 16 states); see
+``benchmarks/results/confident-planner.json``.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import logsumexp
+
+from scrppl import belief as B
+from scrppl import planning as P
+from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.planning import PlannerConfig
+from scrppl.sim.metrics import CONFIDENCE
+
+__all__ = [
+    "CONFIDENT_DEPTH",
+    "CONFIDENT_PLANNER",
+    "RESPONSES",
+    "view_information",
+    "initial_alive",
+    "step_cost",
+    "expected_remaining_views",
+    "optimal_remaining_views",
+    "choose_view_confident",
+]
+
+#: Views looked ahead by ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view`.
+CONFIDENT_DEPTH = 2
+#: The confident planner with ``M = 32`` sampled responses per level (the default ``M = 256`` of
+#: :class:`~scrppl.planning.PlannerConfig` costs ``8^2`` times more at depth 2).
+CONFIDENT_PLANNER = PlannerConfig("confident", n_samples=32)
+#: How the expectation over the next response is taken: common random numbers or Gauss-Hermite nodes.
+RESPONSES = ("sampled", "quadrature")
+
+#: Work (mixture components times responses) evaluated at once below the first level: the first
+#: level's responses are processed in batches of at most this size (bounds memory, not the result).
+_BATCH_WORK = 1 << 20
+
+
+# ------------------------------------------------------------------------------------------------
+# per-view informativeness
+
+
+def view_information(model: ResponseModel, prior=None, *, e: int = 0, s: int = 0, order: int = 32):
+    """Mutual information ``I(o; f)`` (nats) between the class and one response, per relative azimuth.
+
+    The information a first look at relative azimuth ``a`` (pose known) gives about the class, under the
+    model's predictive of one response: a mixture over the ``N`` posterior draws of
+    ``Normal(mu[n, o, a, e, s], sigma^2 + tau[n, o]^2)``. It is the same for both filters (they differ
+    only from the second response on). ``I = sum_{n, o} (p(o) / N) E_{f ~ Normal_{n, o}}[log p(o | f) -
+    log p(o)]``, the expectation by Gauss-Hermite quadrature (the integrand is smooth in ``f``).
+
+    Parameters
+    ----------
+    model
+        The response model.
+    prior
+        Class prior ``p(o)``, shape ``(O,)`` (uniform by default).
+    e, s
+        Elevation and scale.
+    order
+        Gauss-Hermite nodes per mixture component.
+
+    Returns
+    -------
+    ``(A,)`` mutual information in nats, at most ``H(prior)``.
+    """
+    check_response_model(model)
+    n_n, n_o, n_a, n_e, n_s = model.mu.shape
+    if not (0 <= int(e) < n_e and 0 <= int(s) < n_s):
+        raise ValueError(
+            f"view (e, s) = ({e}, {s}) outside the model's grid (E, S) = ({n_e}, {n_s})"
+        )
+    if prior is None:
+        prior = np.full(n_o, 1.0 / n_o)
+    prior = np.asarray(prior, np.float64)
+    if prior.shape != (n_o,) or np.any(prior < 0) or not np.isfinite(prior).all():
+        raise ValueError(f"prior must be ({n_o},) finite and non-negative, got {prior!r}")
+    dtype = model.mu.dtype
+    log_prior = jnp.asarray(np.log(prior / prior.sum()), dtype)
+    x, w = np.polynomial.hermite.hermgauss(int(order))
+    x = jnp.asarray(x, dtype)
+    wq = jnp.asarray(w / math.sqrt(math.pi), dtype)
+    mean = jnp.moveaxis(model.mu[:, :, :, e, s], 2, 0)  # (A, N, O)
+    var = jnp.moveaxis(model.sigma[:, :, :, e, s] ** 2, 2, 0) + (model.tau**2)[None]
+
+    own_class = jnp.arange(n_o)[None, :, None, None]
+
+    def one(m, v):  # one relative azimuth, (N, O)
+        f = m[..., None] + jnp.sqrt(2.0 * v)[..., None] * x  # (N, O, Q) nodes of component (n, o)
+        # log p(f | o) for every node and class: a mean over the draws
+        lp = -0.5 * ((f[..., None, None] - m) ** 2 / v + jnp.log(2 * math.pi * v))  # (N,O,Q,N,O)
+        log_lik = logsumexp(lp, axis=-2) - math.log(n_n)  # (N, O, Q, O)
+        log_post = log_prior + log_lik
+        log_post = log_post - logsumexp(log_post, axis=-1, keepdims=True)
+        # log p(o | f) for the class o of the component the node belongs to
+        own = jnp.take_along_axis(log_post, own_class, axis=-1)[..., 0]
+        gain = own - log_prior[None, :, None]
+        weight = jnp.exp(log_prior)[None, :, None] / n_n * wq
+        return jnp.sum(jnp.where(weight > 0, weight * gain, 0.0))
+
+    return jax.vmap(one)(mean, var)
+
+
+# ------------------------------------------------------------------------------------------------
+# step cost and the expectimax
+
+
+def initial_alive(belief, threshold: float = CONFIDENCE) -> jax.Array:
+    """The ``alive`` flags from the current belief alone: ``p(o | F) <= threshold``, shape ``(O,)``.
+
+    Exact unless a class crossed the threshold earlier in the trial and fell back (only the trial's
+    history knows that; pass the flags explicitly then).
+    """
+    return B.class_marginal(belief) <= threshold
+
+
+def step_cost(p_class, alive, threshold: float = CONFIDENCE) -> tuple[jax.Array, jax.Array]:
+    """The step cost ``s = sum_o p(o) alive'(o)`` and ``alive' = alive & (p(o) <= threshold)``.
+
+    Parameters
+    ----------
+    p_class
+        Class posterior ``(..., O)`` after the step.
+    alive
+        Flags ``(..., O)`` before the step (``True``: that class has not yet been confident).
+    threshold
+        The confidence threshold.
+
+    Returns
+    -------
+    s, alive
+        ``P(not yet confident in the true class | F)``, shape ``(...)``, and the updated flags.
+    """
+    alive = jnp.asarray(alive, bool) & (p_class <= threshold)
+    return jnp.sum(jnp.where(alive, p_class, 0.0), axis=-1), alive
+
+
+def _class_probs(log_joint):
+    """``p(o)`` from normalised ``log p(o, theta)`` ``(..., O, A)``."""
+    return jnp.exp(logsumexp(log_joint, axis=-1))
+
+
+def _leaf(s, any_left, steps_left):
+    """``[lower, upper]`` of the value after the horizon: ``[0, r s]``, exact ``r s`` if no view is left."""
+    rest = steps_left * s
+    return jnp.stack([jnp.where(any_left, 0.0, rest), rest], axis=-1)
+
+
+def _outcomes(mixture, draws):
+    """Next responses ``(J,)`` and their log weights ``(J,)`` at one view, from a predictive mixture."""
+    kind, a, b = draws
+    lw, m, v = (x.ravel() for x in mixture)
+    if kind == "quadrature":  # Gauss-Hermite nodes of every component
+        f = (m[:, None] + jnp.sqrt(2.0 * v)[:, None] * a).ravel()
+        return f, (lw[:, None] + b).ravel()
+    # common random numbers: a component by inverse CDF from u, then its Gaussian from eps
+    cdf = jnp.cumsum(jnp.exp(lw))
+    comp = jnp.minimum(jnp.searchsorted(cdf, a * cdf[-1], side="right"), lw.shape[0] - 1)
+    f = m[comp] + jnp.sqrt(v[comp]) * b
+    return f, jnp.full(f.shape, -math.log(f.shape[0]), f.dtype)
+
+
+def _expect(logw, vals):
+    """``sum_j w_j vals[j]`` over the leading axis; responses of weight zero contribute zero."""
+    w = jnp.exp(logw).reshape((-1,) + (1,) * (vals.ndim - 1))
+    return jnp.sum(jnp.where(w > 0, w * vals, 0.0), axis=0)
+
+
+def _q_one(c, model, belief, alive, valid, views, steps_left, depth, draws, threshold, level):
+    """``[lower, upper]`` of candidate ``c`` as the next view: ``E_f[s' + V(b', alive')]``, shape ``(2,)``."""
+    v = views[c]
+    mix = B.predictive_mixture(model, belief, v[0], v[1], v[2])
+    f, logw = _outcomes(mix, draws[level])
+    valid_after = valid.at[c].set(False)
+    if depth == 1:  # the class posterior only, without updating the whole belief
+        s1, _ = step_cost(_class_probs(B.mixture_posterior(mix, f)), alive, threshold)
+        vals = s1[:, None] + _leaf(s1, valid_after.any(), steps_left - 1)
+        return _expect(logw, vals)
+
+    def child(fj):
+        b1 = B.update(model, belief, fj, v[0], v[1], v[2])
+        s1, alive1 = step_cost(B.class_marginal(b1), alive, threshold)
+        rest = _node(model, b1, alive1, valid_after, views, steps_left - 1, depth - 1, draws,
+                     threshold, level + 1)  # fmt: skip
+        return s1 + rest
+
+    batch = f.shape[0]
+    if level == 0:  # the first level in batches (memory); below it everything is vectorised
+        size = _work_below(mix, views.shape[0], draws, depth)
+        batch = max(1, min(batch, _BATCH_WORK // max(size, 1)))
+    if batch < f.shape[0]:
+        vals = jax.lax.map(child, f, batch_size=batch)
+    else:
+        vals = jax.vmap(child)(f)
+    return _expect(logw, vals)
+
+
+def _work_below(mix, n_cand, draws, depth) -> int:
+    """Mixture components times responses evaluated for one first-level response (static)."""
+    k = math.prod(mix.mean.shape)
+    size = k
+    for level in range(1, depth):
+        size *= n_cand * _n_outcomes(draws[level], k)
+    return size
+
+
+def _n_outcomes(draws, k) -> int:
+    kind, a, _ = draws
+    return k * a.shape[0] if kind == "quadrature" else a.shape[0]
+
+
+def _q_values(model, belief, alive, valid, views, steps_left, depth, draws, threshold, level):
+    """``(C, 2)`` brackets of every candidate (invalid ones are evaluated below the first level)."""
+    args = (model, belief, alive, valid, views, steps_left, depth, draws, threshold, level)
+    idx = jnp.arange(views.shape[0])
+    if level == 0:  # skip invalid candidates (lax.map runs one branch of the cond)
+        nan = jnp.full(2, jnp.nan, model.mu.dtype)
+        return jax.lax.map(
+            lambda c: jax.lax.cond(valid[c], lambda: _q_one(c, *args), lambda: nan), idx
+        )
+    return jax.vmap(lambda c: _q_one(c, *args))(idx)
+
+
+def _node(model, belief, alive, valid, views, steps_left, depth, draws, threshold, level):
+    """``[lower, upper]`` of the best adaptive policy from a node (its step cost already paid)."""
+    s, _ = step_cost(B.class_marginal(belief), alive, threshold)
+    any_left = valid.any() & (steps_left > 0)
+    if depth == 0:
+        return _leaf(s, any_left, steps_left)
+    q = _q_values(model, belief, alive, valid, views, steps_left, depth, draws, threshold, level)
+    best = jnp.min(jnp.where(valid[:, None], q, jnp.inf), axis=0)
+    rest = steps_left * s
+    return jnp.where(any_left, best, jnp.stack([rest, rest]))
+
+
+def _level_draws(key, response: str, depth: int, n_samples: int, order: int, dtype):
+    """Per level: ``("quadrature", nodes, log weights)`` or ``("sampled", u, eps)`` (common random numbers)."""
+    if response == "quadrature":
+        x, w = np.polynomial.hermite.hermgauss(order)
+        spec = (
+            "quadrature",
+            jnp.asarray(x, dtype),
+            jnp.asarray(np.log(w / math.sqrt(math.pi)), dtype),
+        )
+        return (spec,) * depth
+    out = []
+    for level in range(depth):
+        k_u, k_eps = jax.random.split(jax.random.fold_in(key, level))
+        out.append(
+            ("sampled", jax.random.uniform(k_u, (n_samples,), dtype),
+             jax.random.normal(k_eps, (n_samples,), dtype))
+        )  # fmt: skip
+    return tuple(out)
+
+
+def _check_options(key, depth, response, n_samples, order, threshold) -> None:
+    if isinstance(depth, bool) or not isinstance(depth, int | np.integer) or depth < 1:
+        raise ValueError(f"depth must be a positive integer, got {depth!r}")
+    if response not in RESPONSES:
+        raise ValueError(f"unknown response expectation {response!r}; expected one of {RESPONSES}")
+    for name, value in (("n_samples", n_samples), ("order", order)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if response == "sampled" and key is None:
+        raise ValueError("the sampled expectation needs a PRNG key")
+    if not 0.0 < float(threshold) < 1.0:
+        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
+
+
+def _defaults(belief, valid, alive, steps_left, threshold):
+    alive = initial_alive(belief, threshold) if alive is None else jnp.asarray(alive, bool)
+    steps_left = jnp.sum(valid) if steps_left is None else steps_left
+    return alive, jnp.asarray(steps_left, jnp.int32)
+
+
+def expected_remaining_views(
+    model: ResponseModel,
+    belief,
+    views,
+    valid,
+    *,
+    key: jax.Array | None = None,
+    alive=None,
+    steps_left=None,
+    depth: int = CONFIDENT_DEPTH,
+    response: str = "sampled",
+    n_samples: int = 32,
+    order: int = 4,
+    threshold: float = CONFIDENCE,
+) -> jax.Array:
+    """Bracket of the expected views still to count, for every candidate next view, shape ``(C, 2)``.
+
+    ``Q(c) = E_f[s' + V(b', alive')]``: the expected sum of the step costs of the remaining
+    ``steps_left`` views when ``c`` is looked at next and the best adaptive policy follows, by expectimax
+    over ``depth`` views (the module docstring). Column 0 uses the leaf value ``0`` (a lower bound on
+    ``Q``), column 1 the leaf value ``r s`` (an upper bound); they are equal when ``depth >= steps_left``.
+
+    Parameters
+    ----------
+    model
+        The response model.
+    belief
+        The current belief (either filter).
+    views, valid
+        Candidate views ``(C, 3)`` and which of them may be looked at ``(C,)``.
+    key
+        PRNG key of the sampled responses (unused by ``"quadrature"``).
+    alive
+        ``(O,)`` flags: classes not yet confident in this trial (default :func:`initial_alive`).
+    steps_left
+        Views still to come in the trial, this one included (default: the number of valid candidates).
+        Views beyond the last candidate keep the belief and cost ``s`` each.
+    depth
+        Views looked ahead (``1`` is the greedy one-step value plus the bound).
+    response
+        ``"sampled"`` (``n_samples`` per level, common random numbers) or ``"quadrature"``
+        (Gauss-Hermite, ``order`` nodes per mixture component).
+    n_samples, order
+        As above.
+    threshold
+        The confidence threshold (the experiment's 0.95).
+
+    Returns
+    -------
+    ``(C, 2)``: ``[lower, upper]`` per candidate, ``+inf`` for invalid candidates.
+    """
+    _check_options(key, depth, response, n_samples, order, threshold)
+    P.check_planner_inputs(model, belief, views=views)
+    if np.shape(valid) != np.shape(views)[:1]:
+        raise ValueError(
+            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
+        )
+    valid = jnp.asarray(valid, bool)
+    alive, steps_left = _defaults(belief, valid, alive, steps_left, threshold)
+    # the setting the other expectation does not use is fixed: one compiled function per setting
+    n_samples, order = (1, int(order)) if response == "quadrature" else (int(n_samples), 1)
+    return _expected_remaining_views(
+        key, model, belief, jnp.asarray(views), valid, alive, steps_left,
+        depth=int(depth), response=response, n_samples=n_samples, order=order,
+        threshold=float(threshold),
+    )  # fmt: skip
+
+
+@partial(jax.jit, static_argnames=("depth", "response", "n_samples", "order", "threshold"))
+def _expected_remaining_views(
+    key,
+    model,
+    belief,
+    views,
+    valid,
+    alive,
+    steps_left,
+    depth,
+    response,
+    n_samples,
+    order,
+    threshold,
+):
+    """:func:`expected_remaining_views` without the input checks (compiled)."""
+    draws = _level_draws(key, response, depth, n_samples, order, model.mu.dtype)
+    q = _q_values(model, belief, alive, valid, views, steps_left, depth, draws, threshold, 0)
+    return jnp.where(valid[:, None], q, jnp.inf)
+
+
+def optimal_remaining_views(
+    model: ResponseModel, belief, views, valid, **options
+) -> tuple[jax.Array, jax.Array]:
+    """Bracket ``(lower, upper)`` of the best adaptive policy's expected remaining views from a belief.
+
+    ``V = min_c Q(c)`` over the valid candidates (:func:`expected_remaining_views`, same keyword
+    options), or ``steps_left * s`` when no candidate is left. The expected views to confidence of a
+    trial that has seen only its start view is ``1 + s_1 + V`` (:func:`scrppl.sim.bounds.model_optimal_views`).
+    """
+    q = expected_remaining_views(model, belief, views, valid, **options)
+    valid = jnp.asarray(valid, bool)
+    alive, steps_left = _defaults(
+        belief, valid, options.get("alive"), options.get("steps_left"),
+        options.get("threshold", CONFIDENCE),
+    )  # fmt: skip
+    s, _ = step_cost(B.class_marginal(belief), alive, options.get("threshold", CONFIDENCE))
+    any_left = valid.any() & (steps_left > 0)
+    best = jnp.min(q, axis=0)
+    rest = steps_left * s
+    return jnp.where(any_left, best[0], rest), jnp.where(any_left, best[1], rest)
+
+
+def _confident_scores(key, model, belief, views, valid, config: PlannerConfig) -> jax.Array:
+    """The scores of ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view`.
+
+    Upper-bound expected remaining views of each candidate (traceable, no input checks): sampled
+    responses (``config.n_samples`` per level), depth :data:`CONFIDENT_DEPTH`, ``alive`` from the belief
+    and ``steps_left`` the number of valid candidates.
+    """
+    alive, steps_left = _defaults(belief, valid, None, None, CONFIDENCE)
+    draws = _level_draws(key, "sampled", CONFIDENT_DEPTH, config.n_samples, 1, model.mu.dtype)
+    q = _q_values(
+        model, belief, alive, valid, views, steps_left, CONFIDENT_DEPTH, draws, CONFIDENCE, 0
+    )
+    return jnp.where(valid, q[:, 1], jnp.inf)
+
+
+def choose_view_confident(
+    key: jax.Array | None,
+    model: ResponseModel,
+    belief,
+    current,
+    visited,
+    available,
+    config: PlannerConfig = CONFIDENT_PLANNER,
+    *,
+    depth: int = CONFIDENT_DEPTH,
+    response: str = "sampled",
+    alive=None,
+    steps_left=None,
+    threshold: float = CONFIDENCE,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Choose the next view to minimise the expected views to confidence (:func:`scrppl.planning.choose_view`'s interface).
+
+    ``V* = argmin_c upper(Q(c)) + motion_cost * angular_distance(phi_c, phi)`` over the valid
+    candidates, with :func:`expected_remaining_views` (upper bound: the value of a policy) and
+    :func:`scrppl.planning.select_view`. With the defaults (and ``alive``/``steps_left`` left ``None``)
+    it chooses what :func:`scrppl.planning.choose_view` chooses with the same key and ``config`` (whose
+    ``planner`` is ``"confident"``).
+
+    Parameters
+    ----------
+    key
+        PRNG key of the sampled responses (unused by ``"quadrature"``).
+    model, belief
+        The response model and the current belief (either filter).
+    current
+        Current robot view ``(phi, e, s)``.
+    visited, available
+        Boolean ``(A, E, S)`` masks over robot views.
+    config
+        :class:`~scrppl.planning.PlannerConfig`: the candidate ``mode``, ``n_samples`` (responses per
+        level, ``"sampled"``), ``order`` (nodes per component, ``"quadrature"``) and the motion cost (in
+        views per azimuth bin travelled); ``planner`` and ``objective`` are not used.
+    depth, response, alive, steps_left, threshold
+        As in :func:`expected_remaining_views`.
+
+    Returns
+    -------
+    view
+        The chosen view ``(phi, e, s)``.
+    found
+        ``False`` when no candidate was left.
+    scores
+        ``(C,)`` upper-bound expected remaining views plus cost, ``+inf`` for invalid candidates.
+    """
+    config = P.check_planner_config(config)
+    P.check_planner_inputs(model, belief, current=current, visited=visited, available=available)
+    views, valid = P.candidate_views(current, visited, available, config.mode)
+    q = expected_remaining_views(
+        model, belief, views, valid, key=key, alive=alive, steps_left=steps_left, depth=depth,
+        response=response, n_samples=config.n_samples, order=config.order, threshold=threshold,
+    )  # fmt: skip
+    cost = P.travel_cost(views, current, config.motion_cost, model.mu.shape[2])
+    idx, found, scores = P.select_view(q[:, 1], cost, valid)
+    return views[idx], found, scores

@@ -1,0 +1,386 @@
+"""Planning for confident recognition and its yardsticks, against brute force written here in NumPy.
+
+* the model-optimal expectimax (quadrature responses, depth covering every view) against an explicit
+  enumeration of *all* adaptive policies on a tiny grid (A = 4 views, 2 classes, one draw);
+* the truncation bracket [lower, upper] around the full-depth value;
+* the confident planner in ``choose_view`` (``PlannerConfig("confident")``) and in the trial runner;
+* the clairvoyant bound against enumeration of view sets with an independent posterior (a product of
+  marginals for naive Bayes, a multivariate normal per draw for the instance-aware filter);
+* per-view informativeness against SciPy integration.
+"""
+
+import functools
+import itertools
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate, stats
+from scipy.special import logsumexp
+
+from scrppl import belief as B
+from scrppl import confident as C
+from scrppl import planning as P
+from scrppl.models.response import ResponseModel
+from scrppl.sim import Trials, run_trials, trial_metrics
+from scrppl.sim import bounds as SB
+
+THRESHOLD = 0.95
+A = 4
+ORDER = 2  # Gauss-Hermite nodes per component: 2 classes x 4 poses x 2 = 16 responses per view
+
+
+def tiny_model(tau):
+    """A = 4 views, 2 classes, one draw: the target shows at views 0 and 2, weakly elsewhere."""
+    mu = np.zeros((1, 2, A, 1, 1))
+    mu[0, 1, :, 0, 0] = [2.4, 0.3, 1.6, -0.4]
+    mu[0, 0, :, 0, 0] = [0.0, 0.5, -0.3, 0.2]
+    sigma = np.full(mu.shape, 0.7)
+    sigma[0, :, 1] = 0.5
+    return ResponseModel(
+        jnp.asarray(mu, jnp.float32),
+        jnp.asarray(sigma, jnp.float32),
+        jnp.full((1, 2), tau, jnp.float32),
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# brute force, independent of scrppl.belief: joint densities of the whole history per state
+
+
+def log_lik(model, kind, phis, fs):
+    """log p(f_1..f_k | o, theta) for one draw, (O, A, ...) with fs (..., k): a product of marginals
+    (naive Bayes) or a multivariate normal with covariance diag(sigma^2) + tau^2 11' (instance)."""
+    mu, sigma, tau = (np.asarray(x, np.float64)[0] for x in model)
+    fs = np.asarray(fs, np.float64)
+    rel = (np.asarray(phis)[None, :] - np.arange(A)[:, None]) % A  # (theta, k)
+    m, var = mu[:, rel, 0, 0], sigma[:, rel, 0, 0] ** 2  # (O, A, k)
+    t2 = tau[:, None, None] ** 2  # (O, 1, 1)
+    r = fs[..., None, None, :] - m  # (..., O, A, k)
+    if kind == "naive_bayes":
+        v = var + t2
+        out = -0.5 * np.sum(r**2 / v + np.log(2 * np.pi * v), axis=-1)
+    else:
+        cov = var[..., :, None] * np.eye(len(phis)) + t2[..., None]  # (O, A, k, k)
+        _, logdet = np.linalg.slogdet(cov)
+        sol = np.linalg.solve(cov, r[..., None])[..., 0]
+        out = -0.5 * (np.sum(r * sol, axis=-1) + logdet + len(phis) * np.log(2 * np.pi))
+    return np.moveaxis(out, (-2, -1), (0, 1))
+
+
+def class_posterior(model, kind, phis, fs):
+    lj = log_lik(model, kind, phis, fs)
+    lj = lj - logsumexp(lj, axis=(0, 1))
+    return np.exp(logsumexp(lj, axis=1))  # (O, ...)
+
+
+def outcomes(model, kind, phis, fs, phi):
+    """Gauss-Hermite nodes of the next response at view phi after histories fs (..., k).
+
+    Per state (o, theta): its posterior weight times the node weights, at nodes of the response's
+    Gaussian given the state and the history (for the instance-aware model the conditional of a
+    multivariate normal). Returns weights and responses, (..., 8 * ORDER) each.
+    """
+    mu, sigma, tau = (np.asarray(x, np.float64)[0] for x in model)
+    fs = np.asarray(fs, np.float64)
+    lj = log_lik(model, kind, phis, fs)
+    post = np.moveaxis(np.exp(lj - logsumexp(lj, axis=(0, 1))), (0, 1), (-2, -1))  # (..., O, A)
+    a_new = (phi - np.arange(A)) % A
+    m, v = mu[:, a_new, 0, 0], sigma[:, a_new, 0, 0] ** 2  # (O, A)
+    t2 = tau[:, None] ** 2
+    if kind == "naive_bayes":
+        m, v = np.broadcast_to(m, post.shape), v + t2
+    else:  # the new response shares the instance effect with the history: cov(f_new, f_j) = tau^2
+        rel = (np.asarray(phis)[None, :] - np.arange(A)[:, None]) % A
+        cov = sigma[:, rel, 0, 0, None] ** 2 * np.eye(len(phis)) + t2[..., None, None]
+        gain = np.linalg.solve(cov, np.broadcast_to(t2[..., None, None], (*cov.shape[:-1], 1)))
+        gain = gain[..., 0]  # (O, A, k)
+        m = m + np.sum((fs[..., None, None, :] - mu[:, rel, 0, 0]) * gain, axis=-1)
+        v = v + t2 - t2 * gain.sum(-1)
+    x, w = np.polynomial.hermite.hermgauss(ORDER)
+    weights = post[..., None] * w / np.sqrt(np.pi)
+    responses = m[..., None] + np.sqrt(2 * v)[..., None] * x
+    shape = (*post.shape[:-2], -1)
+    return weights.reshape(shape), responses.reshape(shape)
+
+
+def cost(model, kind, phis, fs, alive):
+    """Step cost s = sum_o p(o) alive'(o) and alive' (O, ...) after the histories fs (..., k)."""
+    p = class_posterior(model, kind, phis, fs)
+    alive = alive & (p <= THRESHOLD)
+    return np.sum(p * alive, axis=0), alive
+
+
+def extend(fs, new):
+    """Histories (..., k) extended by each of the responses new (..., J): (..., J, k + 1)."""
+    fs = np.broadcast_to(fs[..., None, :], (*new.shape, fs.shape[-1]))
+    return np.concatenate([fs, new[..., None]], axis=-1)
+
+
+def all_policies(model, kind, start, f0):
+    """Expected remaining views of every adaptive policy after the start view, by explicit enumeration.
+
+    A policy picks a second view v2, then a third view for each of the 16 responses at v2; the fourth
+    is the one left. Returns {v2: values of all 2^16 policies starting with v2}.
+    """
+    h1 = np.asarray([f0], np.float64)
+    _, alive1 = cost(model, kind, [start], h1, np.ones(2, bool))
+    rest = [v for v in range(A) if v != start]
+    values = {}
+    for v2 in rest:
+        w2, f2 = outcomes(model, kind, [start], h1, v2)  # (16,)
+        h2 = extend(h1, f2)  # (16, 2)
+        s2, alive2 = cost(model, kind, [start, v2], h2, alive1[:, None])
+        others = [v for v in rest if v != v2]
+        table = np.zeros((len(f2), 2))  # expected cost after each f2 when others[j] is third
+        for j, v3 in enumerate(others):
+            v4 = others[1 - j]
+            w3, f3 = outcomes(model, kind, [start, v2], h2, v3)  # (16, 16)
+            h3 = extend(h2, f3)
+            s3, alive3 = cost(model, kind, [start, v2, v3], h3, alive2[..., None])
+            w4, f4 = outcomes(model, kind, [start, v2, v3], h3, v4)  # (16, 16, 16)
+            s4, _ = cost(model, kind, [start, v2, v3, v4], extend(h3, f4), alive3[..., None])
+            table[:, j] = np.sum(w3 * (s3 + np.sum(w4 * s4, axis=-1)), axis=-1)
+        # every map from the 16 responses at v2 to a third view
+        choices = np.array(list(itertools.product(range(2), repeat=len(f2))))
+        values[v2] = (w2 * (s2 + table[np.arange(len(f2)), choices])).sum(axis=1)
+    return values
+
+
+@functools.cache
+def tiny(kind):
+    """The tiny grid's model, start view, start response, belief and all policies' values."""
+    model = tiny_model(0.0 if kind == "naive_bayes" else 0.45)
+    start, f0 = 1, 0.9
+    b = B.update(model, B.init_belief(kind, model), jnp.float32(f0), start, 0, 0)
+    return model, start, f0, b, all_policies(model, kind, start, f0)
+
+
+def views_valid(start):
+    views = jnp.asarray([[p, 0, 0] for p in range(A)])
+    return views, jnp.asarray(np.arange(A) != start)
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_full_depth_expectimax_is_the_best_of_all_adaptive_policies(kind):
+    model, start, _, b, values = tiny(kind)
+    views, valid = views_valid(start)
+    q = np.asarray(
+        C.expected_remaining_views(
+            model, b, views, valid, depth=3, response="quadrature", order=ORDER
+        )
+    )
+    assert np.isinf(q[start]).all()
+    best_per_first = {v: float(vals.min()) for v, vals in values.items()}
+    for v, want in best_per_first.items():
+        np.testing.assert_allclose(q[v], [want, want], atol=2e-4)  # depth covers every view
+    brute_first = min(best_per_first, key=best_per_first.get)
+    ranked = sorted(best_per_first.values())
+    assert ranked[1] - ranked[0] > 5e-3  # a clear optimum, so the comparison means something
+    lo, hi = C.optimal_remaining_views(
+        model, b, views, valid, depth=3, response="quadrature", order=ORDER
+    )
+    np.testing.assert_allclose([lo, hi], [ranked[0]] * 2, atol=2e-4)
+    # the planner picks the brute-force optimal first view
+    visited = np.zeros((A, 1, 1), bool)
+    visited[start] = True
+    view, found, _ = C.choose_view_confident(
+        None, model, b, jnp.asarray([start, 0, 0]), visited, np.ones((A, 1, 1), bool),
+        P.PlannerConfig("confident", order=ORDER), depth=3, response="quadrature",
+    )  # fmt: skip
+    assert bool(found) and int(view[0]) == brute_first
+
+
+def test_truncated_depth_brackets_the_optimum():
+    model, start, _, b, values = tiny("naive_bayes")
+    views, valid = views_valid(start)
+    exact = {v: float(vals.min()) for v, vals in values.items()}
+    widths = []
+    for depth in (1, 2):
+        q = np.asarray(
+            C.expected_remaining_views(
+                model, b, views, valid, depth=depth, response="quadrature", order=ORDER
+            )
+        )
+        for v, want in exact.items():
+            assert q[v, 0] - 1e-4 <= want <= q[v, 1] + 1e-4, (depth, v, q[v], want)
+        widths.append(np.mean(q[np.asarray(valid), 1] - q[np.asarray(valid), 0]))
+    assert widths[1] < widths[0]  # looking deeper narrows the bracket
+
+
+def test_sampled_one_step_value_equals_integration(key):
+    kind = "instance"
+    model, start, f0, b, _ = tiny(kind)
+    views, valid = views_valid(start)
+    q = np.asarray(
+        C.expected_remaining_views(model, b, views, valid, depth=1, key=key, n_samples=4096)
+    )
+    # E[s'] = int p(f | f0) s(f0, f) df on a fine grid, from the joint density of both responses
+    grid = np.linspace(-6.0, 8.0, 8001)
+    log_f0 = logsumexp(log_lik(model, kind, [start], [f0]))
+    _, alive = cost(model, kind, [start], [f0], np.ones(2, bool))
+    for v in (v for v in range(A) if v != start):
+        lj = log_lik(model, kind, [start, v], np.column_stack([np.full(grid.size, f0), grid]))
+        density = np.exp(logsumexp(lj, axis=(0, 1)) - log_f0)
+        p = np.exp(logsumexp(lj, axis=1) - logsumexp(lj, axis=(0, 1)))
+        s = np.sum(p * (alive[:, None] & (p <= THRESHOLD)), axis=0)
+        want = integrate.trapezoid(density * s, grid)
+        # sampling error about 0.004 at M = 4096; upper = lower x the 3 views left
+        np.testing.assert_allclose(q[v], [want, 3 * want], atol=0.015, rtol=0.005)
+
+
+def test_confident_planner_in_choose_view_is_the_standalone_planner(key):
+    model = tiny_model(0.45)
+    config = C.CONFIDENT_PLANNER._replace(n_samples=8)
+    b = B.update(model, B.init_belief("instance", model), jnp.float32(0.9), 1, 0, 0)
+    visited = np.zeros((A, 1, 1), bool)
+    visited[1] = True
+    avail = np.ones((A, 1, 1), bool)
+    avail[3] = False
+    here = jnp.asarray([1, 0, 0])
+    got = P.choose_view(key, model, b, here, visited, avail, config)
+    want = C.choose_view_confident(key, model, b, here, visited, avail, config)
+    assert bool(got[1]) and int(got[0][0]) == int(want[0][0]) == int(np.argmin(got[2]))
+    np.testing.assert_allclose(got[2], want[2], rtol=1e-6)
+    scores = np.asarray(got[2])
+    assert np.isinf(scores[[1, 3]]).all() and np.isfinite(scores[[0, 2]]).all()
+    # the entropy planners' interface is untouched: "confident" is a planner, not an entropy estimate
+    assert "confident" in P.PLANNERS and "confident" not in P.ENTROPY_PLANNERS
+
+
+def test_confident_planner_runs_in_the_trial_runner_above_the_clairvoyant_bound(key):
+    model = tiny_model(0.45)
+    rng = np.random.default_rng(3)
+    n = 4
+    label = np.array([1, 0, 1, 1])
+    pose = rng.integers(0, A, n)
+    resp = np.asarray(model.mu)[0, label] + 0.5 * rng.normal(size=(n, A, 1, 1))
+    trials = Trials(
+        jnp.asarray(resp, jnp.float32), jnp.ones((n, A, 1, 1), bool), jnp.asarray(label),
+        jnp.asarray(pose), jnp.asarray(np.c_[rng.integers(0, A, n), np.zeros((n, 2), int)]),
+        jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
+    )  # fmt: skip
+    config = C.CONFIDENT_PLANNER._replace(n_samples=8)
+    rec = run_trials(key, model, trials, config, filter="instance", devices=1)
+    assert np.asarray(rec.observed).all()
+    assert all(sorted(np.asarray(rec.views)[t, :, 0].tolist()) == list(range(A)) for t in range(n))
+    # no planner beats the clairvoyant bound on its own trial
+    met = trial_metrics(rec.log_belief, rec.responses, rec.observed, label, pose)
+    bound = SB.clairvoyant_bound(model, trials, filter="instance")
+    assert np.all(bound <= met["views_to_confidence"])
+
+
+# ------------------------------------------------------------------------------------------------
+# clairvoyant bound
+
+
+def brute_clairvoyant(model, kind, f, ok, start, label, n_steps):
+    """Fewest views (sets containing start, by itertools) with p(true class) > threshold."""
+    mu, sigma, tau = (np.asarray(x, np.float64) for x in model)
+    n_n, n_o, n_a = mu.shape[:3]
+    others = [v for v in range(n_a) if v != start and ok[v]]
+    for size in range(1, n_steps + 1):
+        for extra in itertools.combinations(others, size - 1):
+            phis = np.asarray([start, *extra])
+            lj = np.zeros((n_o, n_a))
+            for o in range(n_o):
+                for th in range(n_a):
+                    a = (phis - th) % n_a
+                    m, sd = mu[:, o, a, 0, 0], sigma[:, o, a, 0, 0]
+                    if kind == "naive_bayes":
+                        sdm = np.sqrt(sd**2 + tau[:, o, None] ** 2)
+                        lj[o, th] = np.log(stats.norm.pdf(f[phis], m, sdm).mean(0)).sum()
+                    else:
+                        lp = [
+                            stats.multivariate_normal(m[n], np.diag(sd[n] ** 2) + tau[n, o] ** 2)
+                            .logpdf(f[phis])
+                            for n in range(n_n)
+                        ]  # fmt: skip
+                        lj[o, th] = logsumexp(lp)
+            p = np.exp(logsumexp(lj, axis=1) - logsumexp(lj))
+            if p[label] > THRESHOLD:
+                return size
+    return n_steps + 1
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_clairvoyant_bound_equals_enumeration_of_view_sets(kind):
+    rng = np.random.default_rng(11)
+    n_a, n = 6, 8
+    mu = rng.normal(0.0, 1.2, size=(2, 2, n_a, 1, 1))
+    sigma = rng.uniform(0.5, 1.0, size=mu.shape)
+    tau = rng.uniform(0.2, 0.6, size=(2, 2))
+    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    label = rng.integers(0, 2, n)
+    pose = rng.integers(0, n_a, n)
+    resp = mu[0, label] + rng.normal(0, 0.8, size=(n, n_a, 1, 1))
+    avail = rng.uniform(size=(n, n_a, 1, 1)) > 0.15
+    start = np.c_[rng.integers(0, n_a, n), np.zeros((n, 2), int)]
+    avail[np.arange(n), (start[:, 0] - pose) % n_a] = True
+    trials = Trials(
+        jnp.asarray(np.where(avail, resp, 0.0), jnp.float32), jnp.asarray(avail), jnp.asarray(label),
+        jnp.asarray(pose), jnp.asarray(start), jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
+    )  # fmt: skip
+    n_steps = 5
+    got = SB.clairvoyant_bound(model, trials, filter=kind, n_steps=n_steps)
+    want = []
+    for t in range(n):
+        rel = (np.arange(n_a) - pose[t]) % n_a  # robot azimuth -> relative azimuth
+        f = np.asarray(trials.responses)[t, rel, 0, 0].astype(np.float64)
+        ok = avail[t, rel, 0, 0]
+        want.append(brute_clairvoyant(model, kind, f, ok, start[t, 0], label[t], n_steps))
+    np.testing.assert_array_equal(got, want)
+    assert len(set(want)) > 1  # the trials span several answers
+
+
+def test_subset_masks_hold_every_set_with_the_start():
+    masks = np.asarray(SB.subset_masks(5, 3))
+    assert masks.shape == (16, 5) and masks[:, 3].all()
+    assert len({tuple(m) for m in masks}) == 16
+
+
+def test_model_optimal_reference_per_trial():
+    kind = "naive_bayes"
+    model, start, f0, _, values = tiny(kind)
+    # a trial whose start response is f0 at robot azimuth `start` (pose 0)
+    resp = np.zeros((1, A, 1, 1), np.float32)
+    resp[0, start] = f0
+    trials = Trials(
+        jnp.asarray(resp), jnp.ones((1, A, 1, 1), bool), jnp.asarray([1]), jnp.asarray([0]),
+        jnp.asarray([[start, 0, 0]]), jnp.zeros(1, jnp.int32), jnp.zeros(1, jnp.int32),
+    )  # fmt: skip
+    got = SB.model_optimal_views(
+        model, trials, filter=kind, depth=3, response="quadrature", order=ORDER
+    )
+    p = class_posterior(model, kind, [start], [f0])
+    s1 = float(np.sum(p * (p <= THRESHOLD)))
+    best = min(v.min() for v in values.values())
+    np.testing.assert_allclose(got[0], [1 + s1 + best] * 2, atol=3e-4)
+
+
+# ------------------------------------------------------------------------------------------------
+# per-view informativeness
+
+
+def test_view_information_equals_scipy_integration():
+    rng = np.random.default_rng(5)
+    mu = rng.normal(0.0, 1.5, size=(2, 2, 3, 1, 2))
+    sigma = rng.uniform(0.4, 1.0, size=mu.shape)
+    tau = rng.uniform(0.0, 0.5, size=(2, 2))
+    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    prior = np.array([0.3, 0.7])
+    got = np.asarray(C.view_information(model, prior, s=1, order=40))
+    for a in range(3):
+        sd = np.sqrt(sigma[:, :, a, 0, 1] ** 2 + tau**2)  # (N, O)
+
+        def lik(f, o, a=a, sd=sd):
+            return stats.norm.pdf(f, mu[:, o, a, 0, 1], sd[:, o]).mean()
+
+        def integrand(f):
+            like = np.array([lik(f, o) for o in range(2)])
+            joint = prior * like
+            return np.sum(np.where(joint > 0, joint * np.log(like / joint.sum()), 0.0))
+
+        want = integrate.quad(integrand, -15, 15, limit=200, epsabs=1e-10)[0]
+        np.testing.assert_allclose(got[a], want, atol=1e-4)
+    assert np.all(got >= -1e-6) and np.all(got <= stats.entropy(prior) + 1e-6)
