@@ -8,6 +8,8 @@ Subcommands (each in its own module, each with ``--help``):
 * ``scrppl simulate``  -- sequential recognition trials (:mod:`scrppl.cli.simulate`)
 * ``scrppl kway``      -- which of K categories: the K-way experiment (:mod:`scrppl.cli.kway`)
 * ``scrppl sweep``     -- planning vs random across imaging difficulty and detectors (:mod:`scrppl.cli.sweep`)
+* ``scrppl decompose`` -- where planning gains or loses views, on a simulated results folder
+  (:mod:`scrppl.cli.decompose`; not a stage of ``reproduce``)
 * ``scrppl reproduce`` -- every stage in order, then the report (:mod:`scrppl.cli.reproduce`)
 
 Each module exposes ``register(subparsers)``, which adds its parser and sets ``func`` to a handler
@@ -23,7 +25,7 @@ import sys
 
 __all__ = ["main", "build_parser"]
 
-_SUBCOMMANDS = ("dataset", "detect", "fit", "simulate", "kway", "sweep", "reproduce")
+_SUBCOMMANDS = ("dataset", "detect", "fit", "simulate", "kway", "sweep", "decompose", "reproduce")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,159 @@
+"""``scrppl decompose``: where planning gains or loses views, from a random view to the clairvoyant bound.
+
+Reads a results folder after ``scrppl simulate`` -- ``<out>/responses.nc``, the fits under
+``<out>/models/`` and ``<out>/simulate-summary.json`` (the detector, targets and settings simulated) --
+and for each simulated target runs, on the experiment's held-out trials (the same instances, poses,
+start views, responses and keys in every row), every method of the experiment with
+
+* ``random``        a random unseen view;
+* ``greedy_joint``  eq. 5, joint entropy (the paper's planner; the experiment's ``--n-samples``);
+* ``greedy_class``  eq. 5 with the class entropy;
+* ``two_step``      two-step lookahead on the class entropy (``scrppl.extensions``, sampled);
+* ``confident``     the planner for views to confidence (``scrppl.confident``, M = 32);
+* ``clairvoyant``   the fewest views had every response been known (``scrppl.sim.bounds``).
+
+Writes ``decomposition.json`` (every number) and ``decomposition.md`` (the tables): per row the mean
+views to confidence, the paired 95% interval of the row minus random and minus the row above, and the
+share of the clairvoyant room (random minus clairvoyant) it captures; and the information about the
+class of a first look at each relative azimuth. With the experiment's seed and ``--trials`` the
+``random`` and ``greedy_joint`` rows are the experiment's ``random`` and ``sampled`` results. Not a
+stage of ``scrppl reproduce``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from scrppl.cli._common import add_common, progress_log
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``decompose`` subcommand."""
+    p = sub.add_parser(
+        "decompose",
+        help="where planning gains or loses views: random, greedy, lookahead, confident, clairvoyant",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_common(p)
+    p.add_argument(
+        "--results",
+        dest="out",
+        type=Path,
+        default=argparse.SUPPRESS,
+        metavar="DIR",
+        help="the results folder (same as --out): read from, and written into",
+    )
+    p.add_argument(
+        "--trials",
+        type=int,
+        default=None,
+        help="trials per target (default: the experiment's, simulate-summary.json)",
+    )
+    p.add_argument("--detector", default=None, help="detector (default: the simulated one)")
+    p.add_argument(
+        "--targets",
+        default=None,
+        help="comma-separated subset of the simulated targets (default: all of them)",
+    )
+    p.add_argument(
+        "--kinds",
+        default=None,
+        help="comma-separated model kinds (default: those the experiment loaded per target)",
+    )
+    p.add_argument(
+        "--n-samples",
+        type=int,
+        default=None,
+        help="samples M of the greedy rows (default: the experiment's)",
+    )
+    p.add_argument(
+        "--max-draws",
+        type=int,
+        default=None,
+        help="posterior draws kept (default: the experiment's)",
+    )
+    p.add_argument(
+        "--lookahead-samples",
+        type=int,
+        default=32,
+        help="two-step row: draws M2 of the second response per first one (default 32)",
+    )
+    p.add_argument(
+        "--lookahead-outer",
+        type=int,
+        default=32,
+        help="two-step row: draws M1 of the first response (default 32)",
+    )
+    p.add_argument(
+        "--confident-samples",
+        type=int,
+        default=None,
+        help="confident row: responses M per level (default: scrppl.confident.CONFIDENT_PLANNER's, 32)",
+    )
+    p.add_argument(
+        "--rows",
+        default=None,
+        help="comma-separated rows to run, in the ladder's order from 'random' (default: all six)",
+    )
+    p.add_argument(
+        "--n-boot", type=int, default=2000, help="bootstrap resamples of the intervals (2000)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)
+
+
+def _names(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    return names or None
+
+
+def _run(args: argparse.Namespace) -> int:
+    from scrppl.confident import CONFIDENT_PLANNER
+    from scrppl.sim.decomposition import ROWS, decompose_results, save_decomposition
+
+    for opt in (
+        "trials",
+        "n_samples",
+        "max_draws",
+        "lookahead_samples",
+        "lookahead_outer",
+        "n_boot",
+    ):
+        value = getattr(args, opt)
+        if value is not None and value < 1:
+            raise ValueError(f"--{opt.replace('_', '-')} must be at least 1, got {value}")
+    confident = CONFIDENT_PLANNER
+    if args.confident_samples is not None:
+        if args.confident_samples < 1:
+            raise ValueError(
+                f"--confident-samples must be at least 1, got {args.confident_samples}"
+            )
+        confident = confident._replace(n_samples=int(args.confident_samples))
+    out = Path(args.out)
+    log = progress_log(args)
+    result = decompose_results(
+        out,
+        seed=args.seed,
+        trials=args.trials,
+        detector=args.detector,
+        targets=_names(args.targets),
+        kinds=_names(args.kinds),
+        n_samples=args.n_samples,
+        max_draws=args.max_draws,
+        lookahead_samples=args.lookahead_samples,
+        lookahead_outer=args.lookahead_outer,
+        confident=confident,
+        rows=_names(args.rows) or ROWS,
+        n_boot=args.n_boot,
+        progress=not args.quiet,
+        log=log,
+    )
+    written = save_decomposition(result, out)
+    log(f"[decompose] wrote {', '.join(str(p) for p in written)}")
+    return 0

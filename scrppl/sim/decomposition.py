@@ -1,0 +1,861 @@
+"""Where planning gains or loses views: views to confidence from a random view down to the clairvoyant bound.
+
+The experiment (:mod:`scrppl.sim.study`) compares one entropy planner with a random view. This module runs
+a *ladder* of planners on the **same** trials -- the same instances, poses, start views and responses, and
+the same PRNG key for every row (trial ``i`` uses ``fold_in(key, i)``, step ``t`` ``fold_in(fold_in(key,
+i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing from the row above:
+
+=================  ================================================================================
+``random``         a random unseen view (the paper's baseline)
+``greedy_joint``   eq. 5: one step ahead, joint entropy ``H(o, theta)``, ``M`` samples (the paper)
+``greedy_class``   the same with the class entropy ``H(o)``: the objective
+``two_step``       two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
+``confident``      :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
+                   depth 2): the metric itself
+``clairvoyant``    :func:`scrppl.sim.bounds.clairvoyant_bound`: the fewest views had every response been
+                   known (no planner with the same filter does better on any trial)
+=================  ================================================================================
+
+Each row is scored by the experiment's *views to confidence* (:func:`scrppl.sim.metrics.trial_metrics`:
+first ``k`` with ``p(o* | f_1..f_k) > 0.95``, ``A + 1`` if never), for every method the experiment runs
+(:func:`scrppl.sim.study.load_methods`: each model kind with the naive-Bayes filter, and the
+instance-aware filter where the model has an instance effect). Per row: the mean, the paired 95%
+bootstrap interval of ``row - random`` and of ``row - previous row``
+(:func:`scrppl.sim.metrics.paired_bootstrap_difference`), and the *share of the clairvoyant room* the
+row captures, ``(mean(random) - mean(row)) / (mean(random) - mean(clairvoyant))`` with a paired
+bootstrap interval (trials resampled as tuples). Beside the ladder: the information a first look at
+each relative azimuth gives about the class (:func:`scrppl.confident.view_information`).
+
+* :data:`ROWS`, :func:`decomposition_planners` -- the ladder and its planners;
+* :func:`run_two_step_trials` -- the trial runner with the two-step planner (the rows of
+  :func:`scrppl.sim.run_trials` otherwise);
+* :func:`run_decomposition` -- views to confidence of every row, method and trial;
+* :func:`summarise_decomposition` -- the per-row numbers; :func:`view_informativeness`;
+* :func:`decompose_target` -- one target of a results folder, on the experiment's trials;
+* :func:`decompose_results` -- every simulated target of a results folder (``scrppl decompose``);
+* :func:`format_decomposition`, :func:`save_decomposition` -- ``decomposition.md`` and
+  ``decomposition.json``.
+
+Cost per trial and decision (``C`` candidates, ``N O A`` mixture components): the greedy rows score ``C``
+views with ``M`` draws; ``two_step`` runs that for ``C x M1`` first responses; ``confident`` scores
+``(C M)^2`` leaves; the clairvoyant bound filters ``2^(A-1)`` view sets once per trial.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+from tqdm.auto import tqdm
+
+from scrppl.belief import init_belief, joint_log_belief, update
+from scrppl.confident import CONFIDENT_PLANNER, view_information
+from scrppl.extensions.lookahead import choose_view_two_step
+from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.planning import PlannerConfig, check_planner_config
+from scrppl.sim import metrics as M
+from scrppl.sim.bounds import clairvoyant_bound
+from scrppl.sim.experiment import Method, run_experiment
+from scrppl.sim.runner import TrialRecord, run_chunked
+from scrppl.sim.simulator import Trials, check_starts, robot_frame
+from scrppl.sim.study import DEFAULT_KINDS, load_methods
+from scrppl.views import check_mask_shape
+
+__all__ = [
+    "ROWS",
+    "PLANNER_ROWS",
+    "DEFAULT_LOOKAHEAD_SAMPLES",
+    "decomposition_planners",
+    "run_two_step_trials",
+    "run_decomposition",
+    "summarise_decomposition",
+    "view_informativeness",
+    "study_keys",
+    "decompose_target",
+    "decompose_results",
+    "format_decomposition",
+    "save_decomposition",
+]
+
+#: The rows of the decomposition, top to bottom.
+ROWS = ("random", "greedy_joint", "greedy_class", "two_step", "confident", "clairvoyant")
+#: The rows that are planners (all but the clairvoyant bound).
+PLANNER_ROWS = ROWS[:-1]
+#: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
+#: ``M2`` draws (the confident planner's ``M = 32`` per level).
+DEFAULT_LOOKAHEAD_SAMPLES = 32
+
+#: What ``decomposition.md`` calls each row.
+_ROW_TITLES = {
+    "random": "random unseen view",
+    "greedy_joint": "greedy, H(o, theta) (eq. 5)",
+    "greedy_class": "greedy, H(o)",
+    "two_step": "two-step lookahead, H(o)",
+    "confident": "confident planner (views to confidence)",
+    "clairvoyant": "clairvoyant bound",
+}
+
+
+def decomposition_planners(
+    n_samples: int = 256,
+    *,
+    lookahead_samples: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    confident: PlannerConfig = CONFIDENT_PLANNER,
+    mode: str = "azimuth",
+) -> dict[str, PlannerConfig]:
+    """The planner rows (:data:`PLANNER_ROWS`) as ``row -> PlannerConfig``.
+
+    Parameters
+    ----------
+    n_samples
+        ``M`` of the greedy rows (eq. 5; the experiment's ``--n-samples``).
+    lookahead_samples
+        ``M2`` of the two-step row: its config is ``PlannerConfig("sampled", "class",
+        n_samples=lookahead_samples)`` (:func:`scrppl.extensions.choose_view_two_step`; ``M1`` is given
+        to :func:`run_two_step_trials`).
+    confident
+        The confident row's planner (default :data:`scrppl.confident.CONFIDENT_PLANNER`, ``M = 32``).
+    mode
+        Candidate views of every row (the experiment's ``"azimuth"``; the clairvoyant bound assumes it).
+
+    Raises
+    ------
+    ValueError
+        For a malformed setting (:func:`scrppl.planning.check_planner_config`), or a ``confident`` config
+        of another planner.
+    """
+    if confident.planner != "confident":
+        raise ValueError(
+            f"the confident row needs PlannerConfig(planner='confident'), got {confident.planner!r}"
+        )
+    configs = {
+        "random": PlannerConfig("random", mode=mode),
+        "greedy_joint": PlannerConfig("sampled", "joint", mode=mode, n_samples=n_samples),
+        "greedy_class": PlannerConfig("sampled", "class", mode=mode, n_samples=n_samples),
+        "two_step": PlannerConfig("sampled", "class", mode=mode, n_samples=lookahead_samples),
+        "confident": confident._replace(mode=mode),
+    }
+    return {row: check_planner_config(c) for row, c in configs.items()}
+
+
+# ------------------------------------------------------------------------------------------------
+# the two-step planner in trials
+
+
+def _two_step_trial(
+    key, model, responses, available, pose, start, *, filter, config, n_outer, n_steps
+):
+    """One trial planned by :func:`scrppl.extensions.choose_view_two_step`.
+
+    The trial of :func:`scrppl.sim.run_trial` (observe the start view, then plan, observe and update for
+    ``n_steps - 1`` steps, step ``t`` with the key ``fold_in(key, t)``) with the two-step chooser in
+    place of :func:`scrppl.planning.choose_view`, in one scan.
+    """
+    resp_r, avail_r = robot_frame(responses, available, pose)
+    start = jnp.asarray(start, jnp.int32)
+
+    def observe_update(belief, visited, current, view, found):
+        f = resp_r[view[0], view[1], view[2]]
+        new = update(model, belief, f, view[0], view[1], view[2])
+        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
+        visited = visited.at[view[0], view[1], view[2]].set(
+            visited[view[0], view[1], view[2]] | found
+        )
+        view = jnp.where(found, view, current)
+        return belief, visited, view, resp_r[view[0], view[1], view[2]]
+
+    belief, visited, current, f0 = observe_update(
+        init_belief(filter, model), jnp.zeros(avail_r.shape, bool), start, start, jnp.asarray(True)
+    )
+    first = (current, f0, jnp.asarray(True), joint_log_belief(belief))
+
+    def step(carry, t):
+        belief, visited, current = carry
+        view, found, _ = choose_view_two_step(
+            jax.random.fold_in(key, t), model, belief, current, visited, avail_r, config,
+            n_outer=n_outer,
+        )  # fmt: skip
+        belief, visited, current, f = observe_update(
+            belief, visited, current, view.astype(jnp.int32), found
+        )
+        return (belief, visited, current), (current, f, found, joint_log_belief(belief))
+
+    _, out = jax.lax.scan(step, (belief, visited, current), jnp.arange(1, n_steps))
+    return TrialRecord(*(jnp.concatenate([a[None], b]) for a, b in zip(first, out, strict=True)))
+
+
+def run_two_step_trials(
+    key: jax.Array,
+    model: ResponseModel,
+    trials: Trials,
+    config: PlannerConfig | None = None,
+    *,
+    filter: str = "naive_bayes",
+    n_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    n_steps: int | None = None,
+    chunk_size: int = 1024,
+    batch_size: int = 1,
+    devices: int | None = None,
+    progress: bool = False,
+) -> TrialRecord:
+    """:func:`scrppl.sim.run_trials` with the two-step lookahead planner.
+
+    Trial ``i`` uses ``fold_in(key, i)`` and its step ``t`` ``fold_in(fold_in(key, i), t)``, as in
+    :func:`~scrppl.sim.run_trials`: with the same key and trials the rows of a comparison see the same
+    trials (the chosen views differ).
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key.
+    model, trials
+        The response model and the trials (their responses through the model's transform).
+    config
+        The two-step planner (:func:`scrppl.extensions.choose_view_two_step`: ``"sampled"`` with ``M2 =
+        n_samples``, or ``"quadrature"``), its objective, candidate mode and motion cost; default the
+        decomposition's ``two_step`` row, ``PlannerConfig("sampled", "class", n_samples=32)``.
+    filter
+        ``"naive_bayes"`` or ``"instance"``.
+    n_outer
+        ``M1``, the draws of the first response (``"sampled"``).
+    n_steps, chunk_size, batch_size, devices, progress
+        As in :func:`~scrppl.sim.run_trials`.
+
+    Returns
+    -------
+    TrialRecord
+        Arrays with leading axes ``(T, K)``.
+    """
+    from scrppl.belief import FILTERS
+    from scrppl.extensions.lookahead import TWO_STEP_PLANNERS
+
+    if config is None:
+        config = decomposition_planners()["two_step"]
+    config = check_planner_config(config, TWO_STEP_PLANNERS)
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
+    if isinstance(n_outer, bool) or int(n_outer) != n_outer or int(n_outer) < 1:
+        raise ValueError(f"n_outer must be a positive integer, got {n_outer!r}")
+    grid_shape = tuple(trials.responses.shape[1:])
+    check_mask_shape(
+        trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
+    )
+    check_response_model(model, grid_shape)
+    n_a, n_e, n_s = grid_shape
+    max_steps = n_a if config.mode == "azimuth" else n_a * n_e * n_s
+    n_steps = n_a if n_steps is None else int(n_steps)
+    if not 1 <= n_steps <= max_steps:
+        raise ValueError(
+            f"n_steps must lie in 1..{max_steps} for mode {config.mode!r}, got {n_steps}"
+        )
+    check_starts(trials.available, trials.pose, trials.start)
+    static = (
+        ("filter", filter),
+        ("config", config),
+        ("n_outer", int(n_outer)),
+        ("n_steps", n_steps),
+    )
+    out = run_chunked(
+        _two_step_trial,
+        static,
+        key,
+        (model,),
+        (trials.responses, trials.available, trials.pose, trials.start),
+        chunk_size=chunk_size,
+        batch_size=batch_size,
+        devices=devices,
+        progress=progress,
+        desc=f"{filter}/two_step",
+    )
+    return TrialRecord(*out)
+
+
+# ------------------------------------------------------------------------------------------------
+# the ladder on paired trials
+
+
+def run_decomposition(
+    key: jax.Array,
+    methods: Mapping[str, Method],
+    *,
+    n_samples: int = 256,
+    lookahead_samples: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    confident: PlannerConfig = CONFIDENT_PLANNER,
+    rows: Sequence[str] = ROWS,
+    progress: bool = False,
+    chunk_size: int = 1024,
+    devices: int | None = None,
+) -> xr.Dataset:
+    """Views to confidence of every row of the ladder, for every method, on the same trials.
+
+    The planner rows other than ``two_step`` run through :func:`scrppl.sim.run_experiment` (so the
+    ``random`` and ``greedy_joint`` rows are the experiment's ``random`` and ``sampled`` planners for the
+    same key), ``two_step`` through :func:`run_two_step_trials` with the same key, and ``clairvoyant``
+    is :func:`scrppl.sim.bounds.clairvoyant_bound` with the method's filter.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key shared by every row and method (the experiment's planner key).
+    methods
+        Name -> :class:`~scrppl.sim.Method`; all with the same trials (labels, poses, start views).
+    n_samples, lookahead_samples, confident
+        The planners (:func:`decomposition_planners`).
+    lookahead_outer
+        ``M1`` of the two-step row.
+    rows
+        The rows to run: :data:`ROWS` or a part of it in the same order, starting with ``"random"`` (the
+        reference); "the row above" is then the previous row run.
+    progress
+        Progress bars (one over the rows, the runners' over chunks).
+    chunk_size, devices
+        As in :func:`scrppl.sim.run_trials`.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``views_to_confidence (method, row, trial)`` (integers, ``A + 1`` when never confident),
+        ``seconds (row)`` (wall time of each row, all methods), the trials' ``label``, ``pose``,
+        ``start_azimuth``, ``elevation``, ``scale`` along ``trial``, ``filter_kind`` along ``method``;
+        the attribute ``planner_configs`` (JSON) holds each planner row's settings.
+    """
+    import json
+
+    rows = list(rows)
+    if not rows or rows[0] != "random" or rows != [r for r in ROWS if r in rows]:
+        raise ValueError(
+            f"rows must be rows of {ROWS} in that order, starting with 'random', got {rows}"
+        )
+    if not methods:
+        raise ValueError("run_decomposition needs at least one method")
+    configs = decomposition_planners(
+        n_samples, lookahead_samples=lookahead_samples, confident=confident
+    )
+    names = list(methods)
+    ref = methods[names[0]].trials
+    n_a = int(ref.responses.shape[1])
+    views = np.zeros((len(names), len(rows), ref.n_trials), np.int64)
+    seconds = np.zeros(len(rows))
+    for j, row in enumerate(tqdm(rows, desc="decomposition", disable=not progress)):
+        t0 = time.perf_counter()
+        if row in ("two_step", "clairvoyant"):
+            for i, name in enumerate(names):
+                meth = methods[name]
+                if row == "clairvoyant":
+                    views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
+                    continue
+                rec = run_two_step_trials(
+                    key, meth.model, meth.trials, configs[row], filter=meth.filter,
+                    n_outer=lookahead_outer, chunk_size=chunk_size, devices=devices,
+                    progress=progress,
+                )  # fmt: skip
+                met = M.trial_metrics(
+                    rec.log_belief, rec.responses, rec.observed, ref.label, ref.pose
+                )
+                views[i, j] = met["views_to_confidence"]
+        else:
+            # checks that every method has the same trials, and runs each with the same key
+            ds = run_experiment(
+                key, methods, {row: configs[row]}, progress=progress, chunk_size=chunk_size,
+                devices=devices,
+            )  # fmt: skip
+            views[:, j] = ds["views_to_confidence"].values[:, 0]
+        seconds[j] = time.perf_counter() - t0
+    start = np.asarray(ref.start)
+    return xr.Dataset(
+        {
+            "views_to_confidence": (("method", "row", "trial"), views),
+            "seconds": (("row",), seconds),
+        },
+        coords={
+            "method": names,
+            "row": rows,
+            "trial": np.arange(ref.n_trials),
+            "filter_kind": ("method", [methods[n].filter for n in names]),
+            "label": ("trial", np.asarray(ref.label)),
+            "pose": ("trial", np.asarray(ref.pose)),
+            "start_azimuth": ("trial", start[:, 0]),
+            "elevation": ("trial", start[:, 1]),
+            "scale": ("trial", start[:, 2]),
+        },
+        attrs={
+            "planner_configs": json.dumps({r: configs[r]._asdict() for r in rows if r in configs}),
+            "lookahead_outer": int(lookahead_outer),
+            "n_views": n_a,
+            "confidence_threshold": M.CONFIDENCE,
+        },
+    )
+
+
+def _ratio_bootstrap(seed: int, gain, room, n_boot: int, level: float = 0.95):
+    """``mean(gain) / mean(room)`` with a percentile-bootstrap interval (trials resampled in pairs).
+
+    ``None`` for the value (and interval) when the room is zero; resamples with no room are dropped.
+    """
+    gain = np.asarray(gain, np.float64)
+    room = np.asarray(room, np.float64)
+    if room.mean() <= 0:
+        return None, None, None
+    rng = np.random.default_rng(seed)
+    n = len(gain)
+    boots = np.full(n_boot, np.nan)
+    for b in range(n_boot):
+        idx = rng.integers(0, n, n)
+        r = room[idx].mean()
+        if r > 0:
+            boots[b] = gain[idx].mean() / r
+    lo, hi = np.nanquantile(boots, [(1 - level) / 2, (1 + level) / 2])
+    return float(gain.mean() / room.mean()), float(lo), float(hi)
+
+
+def _interval(mean, lo, hi) -> dict[str, float]:
+    return {"mean": float(mean), "lo": float(lo), "hi": float(hi)}
+
+
+def summarise_decomposition(ds: xr.Dataset, seed: int = 0, n_boot: int = 2000) -> dict:
+    """The numbers of every row of :func:`run_decomposition`, per method.
+
+    Parameters
+    ----------
+    ds
+        What :func:`run_decomposition` returns.
+    seed
+        Integer seed of the bootstrap resampling (the same for every row).
+    n_boot
+        Bootstrap resamples.
+
+    Returns
+    -------
+    dict
+        For each method: ``filter``, ``room`` (``mean(random) - mean(clairvoyant)``, views, with its
+        paired interval, when the bound was run) and ``rows``: for each row ``views_to_confidence``
+        (mean), ``reached_confidence`` (fraction of trials with at most ``A`` views),
+        ``difference_vs_random`` and ``difference_vs_previous`` (paired bootstrap ``mean``, ``lo``,
+        ``hi``; negative = fewer views) and ``share_of_room`` (``mean``, ``lo``, ``hi``: the fraction of
+        the room captured, ``0`` for random and ``1`` for the bound; ``None`` without the bound or room).
+    """
+    rows = ds["row"].values.tolist()
+    n_a = int(ds.attrs.get("n_views", ds["views_to_confidence"].max() - 1))
+    out = {}
+    for i, method in enumerate(ds["method"].values.tolist()):
+        v = ds["views_to_confidence"].values[i].astype(np.float64)  # (row, trial)
+        random = v[rows.index("random")]
+        clair = v[rows.index("clairvoyant")] if "clairvoyant" in rows else None
+        entry: dict[str, Any] = {"filter": str(ds["filter_kind"].values[i]), "rows": {}}
+        if clair is not None:
+            entry["room"] = _interval(*M.paired_bootstrap_difference(seed, random, clair, n_boot))
+        for j, row in enumerate(rows):
+            x = v[j]
+            prev = v[j - 1] if j > 0 else x
+            rec: dict[str, Any] = {
+                "views_to_confidence": float(x.mean()),
+                "reached_confidence": float((x <= n_a).mean()),
+                "difference_vs_random": _interval(
+                    *M.paired_bootstrap_difference(seed, x, random, n_boot)
+                ),
+                "difference_vs_previous": _interval(
+                    *M.paired_bootstrap_difference(seed, x, prev, n_boot)
+                ),
+            }
+            if clair is not None:
+                share = _ratio_bootstrap(seed, random - x, random - clair, n_boot)
+                rec["share_of_room"] = (
+                    None
+                    if share[0] is None
+                    else dict(zip(("mean", "lo", "hi"), share, strict=True))
+                )
+            else:
+                rec["share_of_room"] = None
+            entry["rows"][row] = rec
+        out[method] = entry
+    return out
+
+
+def view_informativeness(methods: Mapping[str, Method], *, order: int = 32) -> dict[str, Any]:
+    """:func:`scrppl.confident.view_information` of each model kind, on every elevation and scale.
+
+    The information (nats) about the class that a first look at each relative azimuth gives, under a
+    uniform class prior (the experiment's half positive trials). It is the same for both filters, so it
+    is given per model kind (the part of a method's name before ``+``).
+
+    Returns
+    -------
+    dict
+        Kind -> ``{"nats": [[[I(a) for a] for s] for e], "prior_entropy": ln O}``.
+    """
+    out: dict[str, Any] = {}
+    for name, meth in methods.items():
+        kind = name.split("+")[0]
+        if kind in out:
+            continue
+        _, n_o, _, n_e, n_s = meth.model.mu.shape
+        info = [
+            [
+                np.asarray(view_information(meth.model, e=e, s=s, order=order)).tolist()
+                for s in range(n_s)
+            ]
+            for e in range(n_e)
+        ]
+        out[kind] = {"nats": info, "prior_entropy": float(np.log(n_o))}
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# a results folder
+
+
+def study_keys(seed: int, index: int) -> tuple[jax.Array, jax.Array]:
+    """The keys of target number ``index`` in :func:`scrppl.sim.run_study`: (trials, planners).
+
+    ``run_study`` splits ``fold_in(key(seed), index)`` into the keys of the trials, the planners, the
+    large experiment and the Fig. 4 trial; the decomposition uses the first two, so that with the
+    experiment's trial count and settings its ``random`` and ``greedy_joint`` rows are the experiment's
+    ``random`` and ``sampled`` results.
+    """
+    k_trials, k_run, _, _ = jax.random.split(jax.random.fold_in(jax.random.key(seed), index), 4)
+    return k_trials, k_run
+
+
+def decompose_target(
+    seed: int,
+    table: xr.Dataset,
+    models_dir: str | Path,
+    detector: str,
+    target: str,
+    *,
+    target_index: int = 0,
+    trials: int = 160,
+    max_draws: int | None = 32,
+    kinds: Sequence[str] = DEFAULT_KINDS,
+    n_samples: int = 256,
+    lookahead_samples: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    confident: PlannerConfig = CONFIDENT_PLANNER,
+    rows: Sequence[str] = ROWS,
+    n_boot: int = 2000,
+    progress: bool = False,
+    log: Callable[[str], None] = lambda msg: None,
+    chunk_size: int = 1024,
+) -> tuple[xr.Dataset, dict[str, Any]]:
+    """The decomposition of one target of a results folder, on the experiment's held-out trials.
+
+    The trials are :func:`scrppl.sim.study.load_methods`' (every model kind, both filters where the model
+    has an instance effect) with the keys of :func:`study_keys`.
+
+    Parameters
+    ----------
+    seed
+        The experiment's seed.
+    table, models_dir
+        The response table and the ``models/`` folder of the run.
+    detector, target
+        Which fit.
+    target_index
+        The target's number in the experiment (its position in ``scrppl simulate``'s target list).
+    trials, max_draws
+        Trials and posterior draws kept.
+    kinds
+        Model kinds; each must have a fitted model.
+    n_samples, lookahead_samples, lookahead_outer, confident, rows
+        The planners and the rows run (:func:`run_decomposition`).
+    n_boot
+        Bootstrap resamples of the intervals.
+    progress, log
+        Progress bars, and where to report each step.
+    chunk_size
+        Trials per compiled chunk.
+
+    Returns
+    -------
+    ds
+        :func:`run_decomposition`'s dataset.
+    entry
+        ``methods`` (:func:`summarise_decomposition`), ``view_information``
+        (:func:`view_informativeness`), ``transforms``, ``key_index`` and ``seconds`` per row.
+
+    Raises
+    ------
+    FileNotFoundError
+        If a kind of ``kinds`` has no fitted model.
+    """
+    if trials < 2:
+        raise ValueError(f"trials must be at least 2, got {trials}")
+    k_trials, k_run = study_keys(seed, target_index)
+    skipped: list[str] = []
+
+    def note(msg: str) -> None:
+        skipped.append(msg.strip())
+        log(msg)
+
+    methods, used = load_methods(
+        k_trials, models_dir, table, detector, target, trials, kinds=kinds, max_draws=max_draws,
+        log=note,
+    )  # fmt: skip
+    missing = [k for k in kinds if k not in used]
+    if missing:
+        raise FileNotFoundError(
+            f"no fitted {', '.join(missing)} model for detector {detector!r}, target {target!r} "
+            f"under {models_dir} ({'; '.join(skipped)}); run `scrppl fit` first, or pass the kinds "
+            f"that were fitted"
+        )
+    log(f"[decompose] {target}: {trials} trials, methods {', '.join(methods)}")
+    ds = run_decomposition(
+        k_run, methods, n_samples=n_samples, lookahead_samples=lookahead_samples,
+        lookahead_outer=lookahead_outer, confident=confident, rows=rows, progress=progress,
+        chunk_size=chunk_size,
+    )  # fmt: skip
+    entry = {
+        "key_index": int(target_index),
+        "transforms": used,
+        "methods": summarise_decomposition(ds, seed=seed, n_boot=n_boot),
+        "view_information": view_informativeness(methods),
+        "seconds": {
+            r: round(float(s), 2)
+            for r, s in zip(ds["row"].values.tolist(), ds["seconds"].values, strict=True)
+        },
+    }
+    return ds, entry
+
+
+def _simulate_summary(results: Path) -> dict[str, Any]:
+    from scrppl._io import read_json
+
+    summary = read_json(
+        results / "simulate-summary.json",
+        "simulate summary",
+        remedy="run `scrppl simulate` (or `scrppl reproduce`) on this folder first",
+    )
+    settings = summary.get("settings") if isinstance(summary, dict) else None
+    if not isinstance(settings, dict) or not isinstance(summary.get("targets"), dict):
+        raise ValueError(
+            f"{results / 'simulate-summary.json'} is not a summary of `scrppl simulate` (no settings or "
+            f"targets); rerun `scrppl simulate`"
+        )
+    return summary
+
+
+def decompose_results(
+    results: str | Path,
+    *,
+    seed: int = 0,
+    trials: int | None = None,
+    detector: str | None = None,
+    targets: Sequence[str] | None = None,
+    kinds: Sequence[str] | None = None,
+    n_samples: int | None = None,
+    max_draws: int | None = None,
+    lookahead_samples: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
+    confident: PlannerConfig = CONFIDENT_PLANNER,
+    rows: Sequence[str] = ROWS,
+    n_boot: int = 2000,
+    progress: bool = False,
+    log: Callable[[str], None] = lambda msg: None,
+) -> dict[str, Any]:
+    """The decomposition of every simulated target of a results folder (``scrppl decompose``).
+
+    Reads ``responses.nc``, the fits under ``models/`` and ``simulate-summary.json`` (which detector and
+    targets were simulated, with which settings). Target number ``i`` of the experiment gets its keys
+    (:func:`study_keys`), so with the experiment's trial count, seed and settings the ``random`` and
+    ``greedy_joint`` rows are its ``trials.nc`` results.
+
+    Parameters
+    ----------
+    results
+        The results folder.
+    seed
+        The seed (the experiment's ``--seed``).
+    trials
+        Trials per target (default: the experiment's, ``settings.trials``).
+    detector
+        Default: the simulated one.
+    targets
+        A subset of the simulated targets (default: all of them).
+    kinds
+        Model kinds (default: those the experiment loaded for each target).
+    n_samples, max_draws
+        ``M`` of the greedy rows and posterior draws kept (default: the experiment's).
+    lookahead_samples, lookahead_outer, confident, rows, n_boot, progress, log
+        As in :func:`decompose_target`.
+
+    Returns
+    -------
+    dict
+        The JSON of ``decomposition.json``: ``seed``, ``detector``, ``settings``, and per target what
+        :func:`decompose_target` returns (its ``entry``).
+
+    Raises
+    ------
+    FileNotFoundError
+        For a folder without ``responses.nc``, ``models/`` or ``simulate-summary.json``, or a kind
+        without a fitted model.
+    ValueError
+        For a detector or target the experiment did not simulate, or an unreadable input.
+    """
+    from scrppl.responses import load_response_table
+
+    results = Path(results)
+    if not results.is_dir():
+        raise FileNotFoundError(f"results folder not found: {results}")
+    table = load_response_table(results / "responses.nc")
+    models_dir = results / "models"
+    if not models_dir.is_dir():
+        raise FileNotFoundError(
+            f"no fitted models: {models_dir} does not exist (run `scrppl fit` first)"
+        )
+    summary = _simulate_summary(results)
+    settings = summary["settings"]
+    simulated = list(summary["targets"])
+    det = detector or summary.get("detector")
+    if det != summary.get("detector"):
+        raise ValueError(
+            f"detector {det!r} was not simulated in {results} (simulate ran {summary.get('detector')!r})"
+        )
+    chosen = simulated if targets is None else list(targets)
+    for t in chosen:
+        if t not in simulated:
+            raise ValueError(
+                f"target {t!r} was not simulated in {results} (simulated: {simulated})"
+            )
+    if not chosen:
+        raise ValueError(f"no target to decompose (simulated: {simulated})")
+    n_trials = int(settings.get("trials", 160) if trials is None else trials)
+    m = int(settings.get("n_samples", 256) if n_samples is None else n_samples)
+    draws = settings.get("max_draws") if max_draws is None else max_draws
+    out: dict[str, Any] = {
+        "what": "views to confidence from a random view to the clairvoyant bound, on paired trials "
+        "(scrppl.sim.decomposition)",
+        "seed": int(seed),
+        "detector": det,
+        "settings": {
+            "trials": n_trials,
+            "n_samples": m,
+            "max_draws": draws,
+            "lookahead_samples": int(lookahead_samples),
+            "lookahead_outer": int(lookahead_outer),
+            "confident": confident._asdict(),
+            "planners": {
+                row: c._asdict()
+                for row, c in decomposition_planners(
+                    m, lookahead_samples=lookahead_samples, confident=confident
+                ).items()
+            },
+            "n_boot": int(n_boot),
+            "confidence_threshold": M.CONFIDENCE,
+            "rows": list(rows),
+        },
+        "targets": {},
+    }
+    t_start = time.perf_counter()
+    for target in chosen:
+        use = kinds if kinds is not None else list(summary["targets"][target].get("transforms", {}))
+        _, entry = decompose_target(
+            seed, table, models_dir, det, target, target_index=simulated.index(target),
+            trials=n_trials, max_draws=draws, kinds=use or DEFAULT_KINDS, n_samples=m,
+            lookahead_samples=lookahead_samples, lookahead_outer=lookahead_outer,
+            confident=confident, rows=rows, n_boot=n_boot, progress=progress, log=log,
+        )  # fmt: skip
+        out["targets"][target] = entry
+    out["seconds_total"] = round(time.perf_counter() - t_start, 1)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# writing
+
+
+def _ci(d: Mapping[str, float] | None, digits: int = 2) -> str:
+    if d is None:
+        return "--"
+    return f"{d['mean']:+.{digits}f} [{d['lo']:+.{digits}f}, {d['hi']:+.{digits}f}]"
+
+
+def _share(d: Mapping[str, float] | None) -> str:
+    if d is None:
+        return "--"
+    return f"{d['mean']:.2f} [{d['lo']:.2f}, {d['hi']:.2f}]"
+
+
+def format_decomposition(result: Mapping[str, Any]) -> str:
+    """``decomposition.md``: one table per target and method, and the per-view information."""
+    s = result["settings"]
+    lines = [
+        "# Where planning gains or loses views",
+        "",
+        f"Detector `{result['detector']}`, seed {result['seed']}, {s['trials']} paired trials per "
+        f"target (same instances, poses, start views, responses and keys in every row); greedy rows "
+        f"M = {s['n_samples']}, two-step M1 = {s['lookahead_outer']}, M2 = {s['lookahead_samples']}, "
+        f"confident M = {s['confident']['n_samples']}; {s['max_draws']} posterior draws. "
+        f"Views to confidence: first view with p(true class) > {s['confidence_threshold']}, A + 1 if "
+        f"never. Differences are paired (row minus random, row minus the row above; negative = fewer "
+        f"views) with 95% bootstrap intervals ({s['n_boot']} resamples); *share* is the fraction of the "
+        f"room (random minus clairvoyant) the row captures.",
+        "",
+    ]
+    for target, entry in result["targets"].items():
+        lines += [f"## {target}", ""]
+        for method, m in entry["methods"].items():
+            room = m.get("room")
+            lines += [
+                f"### {method}"
+                + (
+                    f" (room {room['mean']:.2f} [{room['lo']:.2f}, {room['hi']:.2f}] views)"
+                    if room
+                    else ""
+                ),
+                "",
+                "| row | views to confidence | reached | minus random | minus row above | share of room |",
+                "|---|---:|---:|---:|---:|---:|",
+            ]
+            for row, r in m["rows"].items():
+                lines.append(
+                    f"| {_ROW_TITLES.get(row, row)} | {r['views_to_confidence']:.3f} | "
+                    f"{r['reached_confidence']:.3f} | {_ci(r['difference_vs_random'])} | "
+                    f"{_ci(r['difference_vs_previous'])} | {_share(r['share_of_room'])} |"
+                )
+            lines.append("")
+        info = entry.get("view_information", {})
+        if info:
+            n_a = len(next(iter(info.values()))["nats"][0][0])
+            lines += [
+                "Information about the class from a first look at each relative azimuth "
+                "(nats, mean over elevations and scales; at most the prior entropy "
+                f"{next(iter(info.values()))['prior_entropy']:.3f}):",
+                "",
+                "| model | " + " | ".join(f"a = {a}" for a in range(n_a)) + " |",
+                "|---|" + "---:|" * n_a,
+            ]
+            for kind, v in info.items():
+                mean = np.asarray(v["nats"]).reshape(-1, n_a).mean(0)
+                lines.append(f"| {kind} | " + " | ".join(f"{x:.3f}" for x in mean) + " |")
+            lines.append("")
+        secs = entry.get("seconds", {})
+        if secs:
+            lines += ["Seconds per row: " + ", ".join(f"{k} {v}" for k, v in secs.items()), ""]
+    return "\n".join(lines)
+
+
+def save_decomposition(result: Mapping[str, Any], out: str | Path) -> list[Path]:
+    """Write ``decomposition.json`` and ``decomposition.md`` under ``out`` (each atomically)."""
+    import json
+
+    from scrppl._io import atomic_path
+
+    out = Path(out)
+    written = []
+    for name, text in (
+        ("decomposition.json", json.dumps(result, indent=2)),
+        ("decomposition.md", format_decomposition(result)),
+    ):
+        path = out / name
+        with atomic_path(path) as tmp:
+            tmp.write_text(text)
+        written.append(path)
+    return written

@@ -1,0 +1,310 @@
+"""The decomposition of views to confidence (scrppl.sim.decomposition, ``scrppl decompose``).
+
+A tiny results folder is written by hand (A = 4 views, one Gaussian fit, a simulate summary). The fast
+tests run the cheap rows of the ladder on it once (random, greedy eq. 5, the clairvoyant bound; their
+compiled runners are then shared by every test):
+
+* the clairvoyant bound is at most every row on every trial;
+* the rows are paired: ``random`` and ``greedy_joint`` are the experiment's ``random`` and ``sampled``
+  results for the same key and trials;
+* a row against itself (random vs random) has the interval exactly [0, 0]; shares are 0 and 1 at the ends;
+* the same seed gives the same numbers;
+* the command writes the same numbers into the folder, and says what is missing from a folder.
+
+The slow tests compile the other planners (about 10 s on two cores): the whole ladder on the tiny folder
+(bound below every row, the two-step row is :func:`run_two_step_trials` with the same key), and
+``scrppl simulate`` then ``scrppl decompose`` on a folder made of the shipped example models (both
+filters), checked against ``trials.nc``.
+"""
+
+import json
+import shutil
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from scrppl.cli import main
+from scrppl.confident import CONFIDENT_PLANNER, view_information
+from scrppl.models.io import save_gaussian
+from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig as PC
+from scrppl.responses import empty_response_table, load_response_table, save_response_table
+from scrppl.sim import decomposition as D
+from scrppl.sim import metrics as M
+from scrppl.sim import robot_frame, run_experiment
+from scrppl.sim.study import load_methods
+from scrppl.views import ViewGrid
+
+A = 4
+TRIALS = 12
+SEED = 3
+#: small planners: the test is about pairing and bookkeeping, not about which planner wins
+OPTIONS = dict(n_samples=8, lookahead_samples=4, lookahead_outer=4)
+CONFIDENT = CONFIDENT_PLANNER._replace(n_samples=4)
+CLI_OPTIONS = ["--lookahead-samples", "4", "--lookahead-outer", "4", "--confident-samples", "4"]
+#: the rows the fast tests run (the others compile for about 10 s)
+FAST_ROWS = ("random", "greedy_joint", "clairvoyant")
+
+
+def tiny_model():
+    """Two classes on A = 4 views: the target shows at views 0 and 2, weakly elsewhere."""
+    mu = np.zeros((1, 2, A, 1, 1))
+    mu[0, 1, :, 0, 0] = [2.4, 0.3, 1.6, -0.4]
+    mu[0, 0, :, 0, 0] = [0.0, 0.5, -0.3, 0.2]
+    return ResponseModel(
+        jnp.asarray(mu, jnp.float32), jnp.full(mu.shape, 0.7, jnp.float32), jnp.zeros((1, 2))
+    )
+
+
+def write_folder(out, *, summary=True, model=True, kinds=("gaussian",)):
+    """A results folder as `scrppl simulate` leaves it, made by hand."""
+    rng = np.random.default_rng(11)
+    cats = ["car", "bike"]
+    split = np.array([["fit", "test", "test", "test"]] * 2, dtype=object)
+    table = empty_response_table(["dpm"], ["car"], cats, 4, ViewGrid(A, (20.0,), (1.0,)), split)
+    mu = np.asarray(tiny_model().mu)[0, :, :, 0, 0]  # (class, A)
+    score = rng.normal(0.0, 0.6, size=table["score"].shape)
+    score[0, 0, 0] += mu[1][None, :, None, None]
+    score[0, 0, 1] += mu[0][None, :, None, None]
+    table["score"][:] = score
+    out.mkdir(parents=True, exist_ok=True)
+    save_response_table(table, out / "responses.nc")
+    if model:
+        save_gaussian(
+            out / "models" / "gaussian-dpm-car.nc",
+            tiny_model(),
+            np.full((2, A, 1, 1), 3),
+            {"detector": "dpm", "target": "car", "transform": "identity"},
+        )
+    if summary:
+        simulated = {"detector": "dpm", "settings": {"trials": TRIALS, "n_samples": 8}}
+        simulated["targets"] = {"car": {"transforms": {k: "identity" for k in kinds}}}
+        (out / "simulate-summary.json").write_text(json.dumps(simulated))
+    return out
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    return write_folder(tmp_path_factory.mktemp("results"))
+
+
+def decompose(folder, seed=SEED, rows=FAST_ROWS):
+    table = load_response_table(folder / "responses.nc")
+    return D.decompose_target(
+        seed, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+        kinds=["gaussian"], confident=CONFIDENT, rows=rows, n_boot=200, **OPTIONS,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def ladder(folder):
+    return decompose(folder)
+
+
+def experiment_methods(folder, seed=SEED):
+    """The experiment's methods and planner key for target 0 (scrppl.sim.run_study's keys)."""
+    k_trials, k_run = D.study_keys(seed, 0)
+    table = load_response_table(folder / "responses.nc")
+    methods, _ = load_methods(k_trials, folder / "models", table, "dpm", "car", TRIALS)
+    return methods, k_run
+
+
+def check_bound_below_every_row(ds, entry, rows):
+    assert ds["row"].values.tolist() == list(rows) and rows[-1] == "clairvoyant"
+    v = ds["views_to_confidence"].values  # (method, row, trial)
+    assert v.shape == (ds.sizes["method"], len(rows), TRIALS)
+    assert np.all(v[:, -1:] <= v)
+    assert np.all((v >= 1) & (v <= A + 1))  # never confident counts A + 1
+    for m in entry["methods"].values():
+        bound = m["rows"]["clairvoyant"]["views_to_confidence"]
+        assert all(bound <= r["views_to_confidence"] for r in m["rows"].values())
+
+
+def test_clairvoyant_bound_is_below_every_row_on_every_trial(ladder):
+    check_bound_below_every_row(*ladder, FAST_ROWS)
+
+
+def test_rows_are_the_experiments_results_on_the_same_trials(folder, ladder):
+    ds, _ = ladder
+    methods, k_run = experiment_methods(folder)
+    planners = {"random": PC("random"), "sampled": PC("sampled", n_samples=OPTIONS["n_samples"])}
+    exp = run_experiment(k_run, methods, planners)
+    for row, planner in (("random", "random"), ("greedy_joint", "sampled")):
+        np.testing.assert_array_equal(
+            ds["views_to_confidence"].sel(row=row).values,
+            exp["views_to_confidence"].sel(planner=planner).values,
+        )
+    for coord in ("label", "pose", "start_azimuth"):
+        np.testing.assert_array_equal(ds[coord].values, exp[coord].values)
+
+
+@pytest.mark.slow
+def test_whole_ladder_is_paired_and_above_the_bound(folder, ladder):
+    ds, entry = decompose(folder, rows=D.ROWS)
+    check_bound_below_every_row(ds, entry, D.ROWS)
+    # the rows the fast tests ran are the same in the whole ladder: one key, the same trials
+    for row in FAST_ROWS:
+        np.testing.assert_array_equal(
+            ds["views_to_confidence"].sel(row=row), ladder[0]["views_to_confidence"].sel(row=row)
+        )
+    # the two-step row: the two-step runner with the same key on the same trials
+    methods, k_run = experiment_methods(folder)
+    meth = methods["gaussian+naive_bayes"]
+    config = D.decomposition_planners(OPTIONS["n_samples"], lookahead_samples=4)["two_step"]
+    rec = D.run_two_step_trials(k_run, meth.model, meth.trials, config, n_outer=4)
+    trials = meth.trials
+    met = M.trial_metrics(rec.log_belief, rec.responses, rec.observed, trials.label, trials.pose)
+    np.testing.assert_array_equal(
+        met["views_to_confidence"], ds["views_to_confidence"].sel(row="two_step").values[0]
+    )
+    views = np.asarray(rec.views)
+    assert np.asarray(rec.observed).all()
+    np.testing.assert_array_equal(views[:, 0], np.asarray(trials.start))
+    for t in range(TRIALS):  # every azimuth once, and the response seen is the one at that view
+        assert sorted(views[t, :, 0].tolist()) == list(range(A))
+        resp_r, _ = robot_frame(trials.responses[t], trials.available[t], trials.pose[t])
+        want = np.asarray(resp_r)[views[t, :, 0], views[t, :, 1], views[t, :, 2]]
+        np.testing.assert_array_equal(np.asarray(rec.responses[t]), want)
+
+
+def test_intervals_of_a_row_against_itself_are_zero_and_shares_run_from_0_to_1(ladder):
+    ds, entry = ladder
+    m = entry["methods"]["gaussian+naive_bayes"]
+    zero = {"mean": 0.0, "lo": 0.0, "hi": 0.0}
+    assert m["rows"]["random"]["difference_vs_random"] == zero
+    assert m["rows"]["random"]["difference_vs_previous"] == zero
+    v = ds["views_to_confidence"].values[0].astype(float)
+    for j, row in enumerate(FAST_ROWS):
+        assert M.paired_bootstrap_difference(0, v[j], v[j], 200) == (0.0, 0.0, 0.0)
+        want = M.paired_bootstrap_difference(SEED, v[j], v[0], 200)
+        assert m["rows"][row]["difference_vs_random"] == dict(
+            zip(("mean", "lo", "hi"), want, strict=True)
+        )
+        if j:
+            want = M.paired_bootstrap_difference(SEED, v[j], v[j - 1], 200)
+            assert m["rows"][row]["difference_vs_previous"] == dict(
+                zip(("mean", "lo", "hi"), want, strict=True)
+            )
+    room = v[0] - v[-1]
+    assert m["room"]["mean"] == pytest.approx(room.mean())
+    assert room.mean() > 0  # the tiny folder leaves room for planning
+    assert m["rows"]["random"]["share_of_room"] == zero
+    assert m["rows"]["clairvoyant"]["share_of_room"] == {"mean": 1.0, "lo": 1.0, "hi": 1.0}
+    for j, row in enumerate(FAST_ROWS):
+        share = m["rows"][row]["share_of_room"]
+        assert share["mean"] == pytest.approx((v[0] - v[j]).mean() / room.mean())
+        assert share["lo"] <= share["mean"] <= share["hi"]
+
+
+def test_same_seed_same_numbers(folder, ladder):
+    ds, entry = ladder
+    again, entry2 = decompose(folder)
+    np.testing.assert_array_equal(again["views_to_confidence"], ds["views_to_confidence"])
+    assert entry2["methods"] == entry["methods"]
+    # another seed draws other trials (same compiled runners)
+    other, _ = decompose(folder, seed=SEED + 1)
+    assert not np.array_equal(other["pose"].values, ds["pose"].values)
+
+
+def test_view_information_per_kind(ladder):
+    _, entry = ladder
+    info = entry["view_information"]["gaussian"]
+    assert np.shape(info["nats"]) == (1, 1, A)
+    np.testing.assert_allclose(info["nats"][0][0], view_information(tiny_model()), rtol=1e-6)
+    assert info["prior_entropy"] == pytest.approx(np.log(2))
+    assert np.all(np.asarray(info["nats"]) <= np.log(2) + 1e-6)
+    # views 0 and 2 separate the classes, 1 and 3 barely
+    assert min(info["nats"][0][0][0], info["nats"][0][0][2]) > max(info["nats"][0][0][1::2])
+
+
+def test_bad_settings_are_refused():
+    for rows in (
+        ("greedy_joint", "random"),
+        ("random", "clairvoyant", "two_step"),
+        ("random", "x"),
+    ):
+        with pytest.raises(ValueError, match="starting with 'random'"):
+            D.run_decomposition(None, {}, rows=rows)
+    with pytest.raises(ValueError, match="planner='confident'"):
+        D.decomposition_planners(confident=PC("sampled"))
+    with pytest.raises(ValueError, match="PlannerConfig.n_samples"):
+        D.decomposition_planners(0)
+
+
+def test_command_writes_the_tables_into_the_results_folder(folder, ladder, capsys):
+    _, entry = ladder
+    argv = ["decompose", "--results", str(folder), "--seed", str(SEED), "--n-boot", "200"]
+    argv += ["--rows", ",".join(FAST_ROWS), "--quiet"]
+    assert main(argv) == 0
+    result = json.loads((folder / "decomposition.json").read_text())
+    assert result["settings"]["trials"] == TRIALS and result["settings"]["n_samples"] == 8
+    assert result["settings"]["rows"] == list(FAST_ROWS)
+    assert result["targets"]["car"]["methods"] == entry["methods"]
+    text = (folder / "decomposition.md").read_text()
+    assert text.count("| gaussian |") == 1 and "clairvoyant bound" in text
+    assert "(room " in text and "greedy, H(o, theta) (eq. 5)" in text
+    # a table per method (header + rows) and the view-information table (header + one kind)
+    assert len([line for line in text.splitlines() if line.startswith("| ")]) == 1 + 3 + 2
+    assert not list(folder.glob(".decomposition*"))  # written atomically: no temporary left
+
+
+def test_command_names_what_the_folder_lacks(tmp_path, capsys):
+    def error(folder, *extra):
+        assert main(["decompose", "--out", str(folder), "--quiet", *extra]) == 1
+        return capsys.readouterr().err
+
+    assert "results folder not found" in error(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    assert "scrppl detect" in error(tmp_path / "empty")
+    assert "scrppl fit" in error(write_folder(tmp_path / "unfitted", model=False))
+    assert "scrppl simulate" in error(write_folder(tmp_path / "unsimulated", summary=False))
+    both = write_folder(tmp_path / "half", kinds=("gaussian", "hierarchical"))
+    err = error(both)
+    assert "no fitted hierarchical model" in err and "scrppl fit" in err
+    assert "was not simulated" in error(both, "--targets", "bike")
+    assert "--trials must be at least 1" in error(both, "--trials", "0")
+    assert "starting with 'random'" in error(both, "--kinds", "gaussian", "--rows", "greedy_joint")
+    (both / "simulate-summary.json").write_text("{not json")
+    err = error(both)
+    assert "simulate summary" in err and "unreadable" in err
+
+
+@pytest.mark.slow
+def test_decompose_after_simulate_on_the_example_models(tmp_path):
+    """Both filters: simulate, then decompose; the rows agree with trials.nc and the bound."""
+    from scrppl.examples import DATA_DIR, simulated_table
+    from scrppl.sim import load_trials
+
+    out = tmp_path / "run"
+    (out / "models").mkdir(parents=True)
+    save_response_table(simulated_table(), out / "responses.nc")
+    for path in DATA_DIR.glob("*-dpm-car.nc"):
+        shutil.copy(path, out / "models" / path.name)
+    argv = ["--out", str(out), "--seed", "1", "--quiet"]
+    simulate = ["simulate", "--profile", "quick", "--targets", "car", "--trials", "10"]
+    simulate += ["--large-trials", "0", "--n-samples", "16", "--max-draws", "4"]
+    assert main(simulate + argv) == 0
+    assert main(["decompose", "--n-boot", "100", *CLI_OPTIONS, *argv]) == 0
+    result = json.loads((out / "decomposition.json").read_text())
+    assert result["settings"]["max_draws"] == 4 and result["settings"]["n_samples"] == 16
+    ds = load_trials(out / "trials.nc").sel(target="car")
+    methods = result["targets"]["car"]["methods"]
+    assert set(methods) == {
+        "gaussian+naive_bayes",
+        "hierarchical+naive_bayes",
+        "hierarchical+instance",
+    }
+    for name, m in methods.items():
+        v = ds["views_to_confidence"].sel({"method": name})
+        assert m["rows"]["random"]["views_to_confidence"] == pytest.approx(
+            float(v.sel(planner="random").mean())
+        )
+        assert m["rows"]["greedy_joint"]["views_to_confidence"] == pytest.approx(
+            float(v.sel(planner="sampled").mean())
+        )
+        bound = m["rows"]["clairvoyant"]["views_to_confidence"]
+        assert all(bound <= r["views_to_confidence"] for r in m["rows"].values())
+        assert m["filter"] == name.split("+")[1]
+    assert set(result["targets"]["car"]["view_information"]) == {"gaussian", "hierarchical"}
+    assert "hierarchical+instance" in (out / "decomposition.md").read_text()
