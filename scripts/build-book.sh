@@ -58,7 +58,7 @@ unset MPLBACKEND
 rm -rf book/_build/html book/_build/jupyter_execute book/_build/.doctrees
 t_build0=$(date +%s)
 mkdir -p book/_build
-$VENV/bin/jupyter-book build -W -n --keep-going book/ 2>&1 | tee book/_build/jupyter-book.log
+$VENV/bin/python scripts/jupyter_book_build.py build -W -n --keep-going book/ 2>&1 | tee book/_build/jupyter-book.log
 t_build=$(date +%s)
 $VENV/bin/python scripts/check_book.py --html book/_build/html --toc book/_toc.yml
 t_end=$(date +%s)

@@ -25,12 +25,15 @@ import argparse
 import functools
 import http.server
 import json
+import os
+import queue
 import re
 import shutil
 import subprocess
 import sys
 import tempfile
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import yaml
@@ -247,6 +250,12 @@ def main(argv: list[str] | None = None) -> int:
         default="chapters/",
         help="pages whose path starts with this must contain typeset math (default: chapters/)",
     )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(2, os.cpu_count() or 1),
+        help="pages checked at once, one browser each (default: 2, or 1 on one core)",
+    )
     args = parser.parse_args(argv)
     if not (args.html / "index.html").exists():
         print(f"check_book: {args.html}/index.html not found: build the book first (make book)")
@@ -265,22 +274,37 @@ def main(argv: list[str] | None = None) -> int:
     args.screenshots.mkdir(parents=True, exist_ok=True)
     server, port = serve(args.html)
     summary = {}
+    pages = toc_pages(args.toc)
+
+    def check_page(page: str, profile: str) -> tuple[str, list[str], dict, dict, Path]:
+        url = f"http://127.0.0.1:{port}/{page}.html"
+        r = probe(browser, f"http://127.0.0.1:{port}/_probe.html?page=/{page}.html", profile)
+        probs = problems_of(page, r)
+        if page.startswith(args.require_math) and not r.get("mathjax"):
+            probs.append("no typeset math on a chapter page")
+        download_problems, downloads = check_downloads(args.html, page, port)
+        probs += download_problems
+        shot = args.screenshots / f"{page.replace('/', '-')}.png"
+        screenshot(browser, url, shot, profile)
+        return page, probs, r, downloads, shot
+
     try:
-        with tempfile.TemporaryDirectory() as profile:
-            for page in toc_pages(args.toc):
-                url = f"http://127.0.0.1:{port}/{page}.html"
-                r = probe(
-                    browser, f"http://127.0.0.1:{port}/_probe.html?page=/{page}.html", profile
-                )
-                probs = problems_of(page, r)
-                if page.startswith(args.require_math) and not r.get("mathjax"):
-                    probs.append("no typeset math on a chapter page")
-                download_problems, downloads = check_downloads(args.html, page, port)
-                probs += download_problems
+        # pages in parallel, one Chromium profile per worker (a profile is locked by the browser using it)
+        with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(args.workers) as pool:
+            profiles = queue.Queue()
+            for i in range(args.workers):
+                profiles.put(str(Path(tmp) / f"profile-{i}"))
+
+            def job(page: str):
+                profile = profiles.get()
+                try:
+                    return check_page(page, profile)
+                finally:
+                    profiles.put(profile)
+
+            for page, probs, r, downloads, shot in pool.map(job, pages):  # in the table's order
                 if probs:
                     failures[page] = probs
-                shot = args.screenshots / f"{page.replace('/', '-')}.png"
-                screenshot(browser, url, shot, profile)
                 summary[page] = {k: r.get(k) for k in ("title", "images", "mathjax", "chars")}
                 if downloads:
                     summary[page]["downloads"] = downloads
@@ -291,7 +315,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 print(
                     f"[check-book] {status:4} {page}: '{r.get('title', '')}', {r.get('images', 0)} images, "
-                    f"{r.get('mathjax', 0)} typeset formulas{offered} -> {shot}"
+                    f"{r.get('mathjax', 0)} typeset formulas{offered} -> {shot}",
+                    flush=True,
                 )
     finally:
         server.shutdown()
