@@ -253,8 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--workers",
         type=int,
-        default=min(2, os.cpu_count() or 1),
-        help="pages checked at once, one browser each (default: 2, or 1 on one core)",
+        default=int(os.environ.get("BOOK_JOBS", min(2, os.cpu_count() or 1))),
+        help="pages checked at once, one browser each (default: $BOOK_JOBS, else 2, or 1 on one core)",
     )
     args = parser.parse_args(argv)
     if not (args.html / "index.html").exists():
