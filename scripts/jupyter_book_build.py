@@ -7,7 +7,8 @@ one, so every page's notebook runs after the previous one. This wrapper gives it
     .venv/bin/python scripts/jupyter_book_build.py build -W -n --keep-going book/
 
 myst-nb, sphinx-exercise, sphinx-design, sphinxcontrib-bibtex, the theme and the book's own extensions
-(``book/_ext``) all declare themselves safe for parallel reading. Each worker process executes its share of
+(``book/_ext``) declare themselves safe for parallel reading; two of Jupyter Book's own do not, and are
+declared here (:data:`UNDECLARED_BUT_SAFE`, with the reason for each). Each worker process executes its share of
 the pages with its own kernel, and Sphinx merges what they found (glued values, execution times).
 """
 
@@ -22,7 +23,7 @@ def main() -> int:
     import jupyter_book.sphinx
 
     jobs = int(os.environ.get("BOOK_JOBS", min(2, os.cpu_count() or 1)))
-    _declare_multitoc_numbering_parallel_safe()
+    _declare_parallel_safe()
     # the CLI imports build_sphinx from this module when it runs, so it finds the job count set here
     jupyter_book.sphinx.build_sphinx = functools.partial(
         jupyter_book.sphinx.build_sphinx, jobs=jobs
@@ -34,24 +35,34 @@ def main() -> int:
     return 0
 
 
-def _declare_multitoc_numbering_parallel_safe() -> None:
-    """Jupyter Book's own ``sphinx_multitoc_numbering`` (chapters numbered across the parts of the table of
-    contents) declares nothing, so Sphinx would read serially and warn (an error under ``-W``). It is safe:
-    its ``setup`` only replaces ``TocTreeCollector.assign_section_numbers``, a method of a class that the
-    forked reading processes inherit and that Sphinx calls in the main process after it merged their
-    environments. Its ``setup`` is wrapped here to say so."""
-    import sphinx_multitoc_numbering
+#: Extensions Jupyter Book loads that declare nothing about parallel reading (Sphinx then reads serially and
+#: warns, an error under ``-W``), and why each is safe.
+UNDECLARED_BUT_SAFE = {
+    # only replaces TocTreeCollector.assign_section_numbers, a method of a class that the forked reading
+    # processes inherit and that Sphinx calls in the main process after it merged their environments
+    "sphinx_multitoc_numbering": "numbers chapters in the main process after the merge",
+    # its read-phase transforms change only the doctree of the page being read (toctree attributes of the
+    # root page, hidden toctrees); the rest runs only for the LaTeX builder
+    "sphinx_jupyterbook_latex": "changes only the doctree being read; the rest is for LaTeX builds",
+}
 
-    setup = sphinx_multitoc_numbering.setup
-    if getattr(setup, "_scrppl_parallel_safe", False):
-        return
 
-    def parallel_safe_setup(app):
-        setup(app)
-        return {"parallel_read_safe": True, "parallel_write_safe": True}
+def _declare_parallel_safe() -> None:
+    """Wrap the ``setup`` of each of :data:`UNDECLARED_BUT_SAFE` to return the metadata it lacks."""
+    import importlib
 
-    parallel_safe_setup._scrppl_parallel_safe = True
-    sphinx_multitoc_numbering.setup = parallel_safe_setup
+    for name in UNDECLARED_BUT_SAFE:
+        module = importlib.import_module(name)
+        setup = module.setup
+        if getattr(setup, "_scrppl_parallel_safe", False):
+            continue
+
+        def parallel_safe_setup(app, _setup=setup):
+            metadata = _setup(app) or {}
+            return {**metadata, "parallel_read_safe": True, "parallel_write_safe": True}
+
+        parallel_safe_setup._scrppl_parallel_safe = True
+        module.setup = parallel_safe_setup
 
 
 if __name__ == "__main__":
