@@ -57,15 +57,14 @@ from tqdm.auto import tqdm
 from scrppl.belief import init_belief, joint_log_belief, update
 from scrppl.confident import CONFIDENT_PLANNER, view_information
 from scrppl.extensions.lookahead import choose_view_two_step
-from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.models.response import ResponseModel
 from scrppl.planning import PlannerConfig, check_planner_config
 from scrppl.sim import metrics as M
 from scrppl.sim.bounds import clairvoyant_bound
 from scrppl.sim.experiment import Method, run_experiment
-from scrppl.sim.runner import TrialRecord, run_chunked
-from scrppl.sim.simulator import Trials, check_starts, robot_frame
+from scrppl.sim.runner import TrialRecord, check_trial_inputs, run_chunked
+from scrppl.sim.simulator import Trials, robot_frame
 from scrppl.sim.study import DEFAULT_KINDS, load_methods
-from scrppl.views import check_mask_shape
 
 __all__ = [
     "ROWS",
@@ -232,29 +231,14 @@ def run_two_step_trials(
     TrialRecord
         Arrays with leading axes ``(T, K)``.
     """
-    from scrppl.belief import FILTERS
     from scrppl.extensions.lookahead import TWO_STEP_PLANNERS
 
     if config is None:
         config = decomposition_planners()["two_step"]
     config = check_planner_config(config, TWO_STEP_PLANNERS)
-    if filter not in FILTERS:
-        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
     if isinstance(n_outer, bool) or int(n_outer) != n_outer or int(n_outer) < 1:
         raise ValueError(f"n_outer must be a positive integer, got {n_outer!r}")
-    grid_shape = tuple(trials.responses.shape[1:])
-    check_mask_shape(
-        trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
-    )
-    check_response_model(model, grid_shape)
-    n_a, n_e, n_s = grid_shape
-    max_steps = n_a if config.mode == "azimuth" else n_a * n_e * n_s
-    n_steps = n_a if n_steps is None else int(n_steps)
-    if not 1 <= n_steps <= max_steps:
-        raise ValueError(
-            f"n_steps must lie in 1..{max_steps} for mode {config.mode!r}, got {n_steps}"
-        )
-    check_starts(trials.available, trials.pose, trials.start)
+    n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     static = (
         ("filter", filter),
         ("config", config),

@@ -261,6 +261,32 @@ def run_chunked(
     return [jnp.asarray(np.concatenate(parts)) for parts in zip(*outs, strict=True)]
 
 
+def check_trial_inputs(
+    model: ResponseModel, trials: Trials, config: PlannerConfig, filter: str, n_steps: int | None
+) -> int:
+    """Check a trial runner's inputs (filter, masks, model grid, starts); return the number of steps.
+
+    ``n_steps`` ``None`` means one step per azimuth; it must lie between 1 and the candidate views of
+    ``config.mode``.
+    """
+    if filter not in FILTERS:
+        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
+    grid_shape = tuple(trials.responses.shape[1:])
+    check_mask_shape(
+        trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
+    )
+    check_response_model(model, grid_shape)
+    n_a, n_e, n_s = grid_shape
+    max_steps = n_a if config.mode == "azimuth" else n_a * n_e * n_s
+    n_steps = n_a if n_steps is None else int(n_steps)
+    if not 1 <= n_steps <= max_steps:
+        raise ValueError(
+            f"n_steps must lie in 1..{max_steps} for mode {config.mode!r}, got {n_steps}"
+        )
+    check_starts(trials.available, trials.pose, trials.start)
+    return n_steps
+
+
 def run_trials(
     key: jax.Array,
     model: ResponseModel,
@@ -309,22 +335,8 @@ def run_trials(
         Arrays with leading axes ``(T, K)``.
     """
     config = check_planner_config(config)
-    if filter not in FILTERS:
-        raise ValueError(f"unknown filter {filter!r}; expected one of {FILTERS}")
-    grid_shape = tuple(trials.responses.shape[1:])
-    check_mask_shape(
-        trials.available, trials.responses.shape, name="trials.available", where="trials.responses"
-    )
-    check_response_model(model, grid_shape)
-    n_a, n_e, n_s = grid_shape
-    max_steps = n_a if config.mode == "azimuth" else n_a * n_e * n_s
-    n_steps = n_a if n_steps is None else int(n_steps)
-    if not 1 <= n_steps <= max_steps:
-        raise ValueError(
-            f"n_steps must lie in 1..{max_steps} for mode {config.mode!r}, got {n_steps}"
-        )
+    n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     n = trials.n_trials
-    check_starts(trials.available, trials.pose, trials.start)
     static = (
         ("filter", filter),
         ("config", config._replace(motion_cost=0.0)),  # the cost is passed as a value
