@@ -54,7 +54,7 @@ import numpy as np
 import xarray as xr
 from tqdm.auto import tqdm
 
-from scrppl.belief import init_belief, joint_log_belief, update
+from scrppl.belief import init_belief, joint_log_belief
 from scrppl.confident import CONFIDENT_PLANNER, view_information
 from scrppl.extensions.lookahead import choose_view_two_step
 from scrppl.models.response import ResponseModel
@@ -62,7 +62,7 @@ from scrppl.planning import PlannerConfig, check_planner_config
 from scrppl.sim import metrics as M
 from scrppl.sim.bounds import clairvoyant_bound
 from scrppl.sim.experiment import Method, run_experiment
-from scrppl.sim.runner import TrialRecord, check_trial_inputs, run_chunked
+from scrppl.sim.runner import TrialRecord, check_trial_inputs, observer, run_chunked
 from scrppl.sim.simulator import Trials, robot_frame
 from scrppl.sim.study import DEFAULT_KINDS, load_methods
 
@@ -159,16 +159,7 @@ def _two_step_trial(
     resp_r, avail_r = robot_frame(responses, available, pose)
     start = jnp.asarray(start, jnp.int32)
 
-    def observe_update(belief, visited, current, view, found):
-        f = resp_r[view[0], view[1], view[2]]
-        new = update(model, belief, f, view[0], view[1], view[2])
-        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
-        visited = visited.at[view[0], view[1], view[2]].set(
-            visited[view[0], view[1], view[2]] | found
-        )
-        view = jnp.where(found, view, current)
-        return belief, visited, view, resp_r[view[0], view[1], view[2]]
-
+    observe_update = observer(model, resp_r)
     belief, visited, current, f0 = observe_update(
         init_belief(filter, model), jnp.zeros(avail_r.shape, bool), start, start, jnp.asarray(True)
     )

@@ -59,6 +59,28 @@ class TrialRecord(NamedTuple):
     log_belief: jax.Array
 
 
+def observer(model: ResponseModel, resp_r: jax.Array):
+    """The step a trial takes after choosing a view: observe its response and update the belief.
+
+    Returns ``observe_update(belief, visited, current, view, found) -> (belief, visited, view, f)``: when
+    ``found`` is false (no candidate was left) the belief and visited mask stay as they were and the robot
+    stays at ``current``; ``f`` is the response where it now is. ``resp_r`` holds the trial's responses in
+    the robot's frame (:func:`scrppl.sim.simulator.robot_frame`).
+    """
+
+    def observe_update(belief, visited, current, view, found):
+        f = resp_r[view[0], view[1], view[2]]
+        new = update(model, belief, f, view[0], view[1], view[2])
+        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
+        visited = visited.at[view[0], view[1], view[2]].set(
+            visited[view[0], view[1], view[2]] | found
+        )
+        view = jnp.where(found, view, current)
+        return belief, visited, view, resp_r[view[0], view[1], view[2]]
+
+    return observe_update
+
+
 def run_trial(
     key: jax.Array,
     model: ResponseModel,
@@ -100,17 +122,7 @@ def run_trial(
     resp_r, avail_r = robot_frame(responses, available, pose)
     start = jnp.asarray(start, jnp.int32)
 
-    def observe_update(belief, visited, current, view, found):
-        f = resp_r[view[0], view[1], view[2]]
-        new = update(model, belief, f, view[0], view[1], view[2])
-        belief = jax.tree.map(lambda n, o: jnp.where(found, n, o), new, belief)
-        visited = visited.at[view[0], view[1], view[2]].set(
-            visited[view[0], view[1], view[2]] | found
-        )
-        view = jnp.where(found, view, current)
-        f = resp_r[view[0], view[1], view[2]]
-        return belief, visited, view, f
-
+    observe_update = observer(model, resp_r)
     belief0 = init_belief(filter, model)
     visited0 = jnp.zeros(avail_r.shape, bool)
     belief, visited, current, f0 = observe_update(
