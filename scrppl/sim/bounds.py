@@ -28,9 +28,11 @@ import numpy as np
 
 from scrppl import belief as B
 from scrppl.confident import RESPONSES, optimal_remaining_views, step_cost
-from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.models.response import ResponseModel
+from scrppl.planning import PlannerConfig
 from scrppl.sim.metrics import CONFIDENCE
-from scrppl.sim.simulator import Trials, check_starts, robot_frame
+from scrppl.sim.runner import check_trial_inputs
+from scrppl.sim.simulator import Trials, robot_frame
 
 __all__ = ["subset_masks", "clairvoyant_views", "clairvoyant_bound", "model_optimal_views"]
 
@@ -147,13 +149,7 @@ def clairvoyant_bound(
     batch_size
         Trials vectorised together (memory only).
     """
-    _check_filter(filter)
-    check_response_model(model, tuple(trials.responses.shape[1:]))
-    check_starts(trials.available, trials.pose, trials.start)
-    n_a = model.mu.shape[2]
-    n_steps = n_a if n_steps is None else int(n_steps)
-    if not 1 <= n_steps <= n_a:
-        raise ValueError(f"n_steps must lie in 1..{n_a}, got {n_steps}")
+    n_steps = check_trial_inputs(model, trials, PlannerConfig(mode="azimuth"), filter, n_steps)
     out = _clairvoyant_bound(
         model, tuple(trials)[:5], filter=filter, threshold=float(threshold), n_steps=n_steps,
         batch_size=max(1, int(batch_size)),
@@ -222,15 +218,10 @@ def model_optimal_views(
     -------
     ``(T, 2)``: ``[lower, upper]`` expected views to confidence per trial.
     """
-    _check_filter(filter)
     if response not in RESPONSES:
         raise ValueError(f"unknown response expectation {response!r}; expected one of {RESPONSES}")
-    check_response_model(model, tuple(trials.responses.shape[1:]))
-    check_starts(trials.available, trials.pose, trials.start)
+    n_steps = check_trial_inputs(model, trials, PlannerConfig(mode="azimuth"), filter, n_steps)
     n_a = model.mu.shape[2]
-    n_steps = n_a if n_steps is None else int(n_steps)
-    if not 1 <= n_steps <= n_a:
-        raise ValueError(f"n_steps must lie in 1..{n_a}, got {n_steps}")
     options = dict(depth=depth, response=response, order=order, n_samples=n_samples, key=key,
                    threshold=threshold)  # fmt: skip
     out = []
