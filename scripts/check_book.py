@@ -12,9 +12,10 @@ For each chapter (every page listed in ``book/_toc.yml``) the check asserts that
   the loopback server, is a valid notebook (the student copy: no outputs, an answer cell to write;
   ``book/_ext/scrppl_downloads.py`` writes them).
 
-It serves ``book/_build/html`` over loopback, loads each page inside a same-origin ``<iframe>`` of a small
-probe page (so that plain ``chromium --dump-dom`` can read the loaded page's DOM, with no browser driver),
-and writes a screenshot of every page to ``book/_build/screenshots/``. Exit status 1 if any check fails.
+It serves ``book/_build/html`` over loopback and drives one headless Chromium per worker over the DevTools
+protocol on a pipe (``--remote-debugging-pipe``: no browser driver, no port): each page is loaded once in
+a reused tab, inspected by a script run in it after MathJax has typeset, and photographed; the
+screenshots go to ``book/_build/screenshots/``. Exit status 1 if any check fails.
 
 Usage: ``python scripts/check_book.py [--html book/_build/html] [--toc book/_toc.yml]``
 """
@@ -22,38 +23,39 @@ Usage: ``python scripts/check_book.py [--html book/_build/html] [--toc book/_toc
 from __future__ import annotations
 
 import argparse
+import base64
+import fcntl
 import functools
 import http.server
 import json
 import os
 import queue
 import re
+import select
 import shutil
 import subprocess
 import sys
 import tempfile
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import yaml
 
-PROBE = """<!DOCTYPE html>
-<html><head><meta charset="utf-8"><title>probe</title></head>
-<body><pre id="result">pending</pre>
-<script>
-const page = new URLSearchParams(location.search).get("page");
-const frame = document.createElement("iframe");
-frame.style.width = "1280px"; frame.style.height = "1200px";
-document.body.appendChild(frame);
-function report(obj) { document.getElementById("result").textContent = "RESULT:" + JSON.stringify(obj); }
-function inspect() {
-  const d = frame.contentDocument;
+#: Run in each loaded page: what a reader would see (after MathJax has typeset, if the page has it).
+INSPECT = """(async () => {
+  const w = window;
+  if (w.MathJax && w.MathJax.startup && w.MathJax.startup.promise) {
+    try { await w.MathJax.startup.promise; } catch (e) {}
+    await new Promise(r => setTimeout(r, 500));
+  } else { await new Promise(r => setTimeout(r, 3000)); }
+  const d = document;
   const main = d.querySelector("main") || d.body;
   const imgs = Array.from(main.querySelectorAll("img"));
   const text = main.innerText || "";
   const h1 = d.querySelector("h1");
-  report({
+  return {
     title: h1 ? h1.innerText.replace(/[#¶]/g, "").trim() : "",
     doc_title: d.title,
     images: imgs.length,
@@ -65,18 +67,9 @@ function inspect() {
     tracebacks: main.querySelectorAll(".output.traceback, .traceback").length + (text.includes("Traceback (most recent call last)") ? 1 : 0),
     errors: Array.from(main.querySelectorAll(".system-message, .problematic")).map(e => e.innerText.slice(0, 200)),
     chars: text.length,
-  });
-}
-frame.onload = () => {
-  const w = frame.contentWindow;
-  const done = () => setTimeout(inspect, 500);
-  if (w.MathJax && w.MathJax.startup && w.MathJax.startup.promise) {
-    w.MathJax.startup.promise.then(done, done);
-  } else { setTimeout(inspect, 3000); }
-};
-frame.src = page;
-</script></body></html>
-"""
+  };
+})()"""
+
 
 REMOTE = re.compile(r"""(?:src|href)=["']https?://[^"']+\.(?:js|css|woff2?|ttf)(?:\?[^"']*)?["']""")
 CHROMIUM_FLAGS = [
@@ -133,35 +126,132 @@ class QuietHandler(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-def probe(browser: str, url: str, profile: str) -> dict:
-    cmd = [
-        browser,
-        *CHROMIUM_FLAGS,
-        f"--user-data-dir={profile}",
-        "--virtual-time-budget=30000",
-        "--dump-dom",
-        url,
-    ]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120).stdout
-    m = re.search(r"RESULT:(\{.*?\})</pre>", out, re.S)
-    if not m:
-        return {"probe_failed": out[-300:]}
-    import html as _html
-
-    return json.loads(_html.unescape(m.group(1)))
+def _high(fd: int) -> int:
+    """``fd`` moved to the lowest free descriptor >= 10 (close-on-exec)."""
+    high = fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10)
+    os.close(fd)
+    return high
 
 
-def screenshot(browser: str, url: str, path: Path, profile: str) -> None:
-    cmd = [
-        browser,
-        *CHROMIUM_FLAGS,
-        f"--user-data-dir={profile}",
-        "--window-size=1280,2400",
-        "--virtual-time-budget=20000",
-        f"--screenshot={path}",
-        url,
-    ]
-    subprocess.run(cmd, capture_output=True, timeout=120)
+class Browser:
+    """One headless Chromium driven over the DevTools protocol on a pipe (``--remote-debugging-pipe``).
+
+    The browser reads NUL-terminated JSON commands on its descriptor 3 and writes replies and events on
+    its descriptor 4; no driver and no network port. One tab is reused for every page: load it, run
+    :data:`INSPECT` in it, take its screenshot.
+    """
+
+    def __init__(self, path: str, profile: str, timeout: float = 120.0):
+        # the pipes at descriptors >= 10, so that bash's "3<&N 4>&M" cannot overwrite one by the other
+        # (bash, not sh: dash reads only one-digit descriptors in a redirection)
+        to_browser, from_us, from_browser, to_us = (_high(fd) for fd in (*os.pipe(), *os.pipe()))
+        self.timeout = timeout
+        self.proc = subprocess.Popen(
+            ["bash", "-c", f'exec "$0" "$@" 3<&{to_browser} 4>&{to_us}', path, *CHROMIUM_FLAGS,
+             f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
+            pass_fds=(to_browser, to_us),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        for fd in (to_browser, to_us):
+            os.close(fd)
+        self._out, self._in = from_us, from_browser
+        self._buf = b""
+        self._id = 0
+        self.events: list[dict] = []
+        target = self.call("Target.createTarget", {"url": "about:blank"})["targetId"]
+        self.session = self.call("Target.attachToTarget", {"targetId": target, "flatten": True})[
+            "sessionId"
+        ]
+        self.call("Page.enable", session=True)
+        self.call("Network.enable", session=True)  # for the status of each page's document
+        self.call(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": 1280, "height": 2400, "deviceScaleFactor": 1, "mobile": False},
+            session=True,
+        )
+
+    def _read(self, deadline: float) -> dict:
+        while b"\0" not in self._buf:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([self._in], [], [], left)[0]:
+                raise TimeoutError("the browser did not answer in time")
+            chunk = os.read(self._in, 1 << 20)
+            if not chunk:
+                raise RuntimeError("the browser closed its DevTools pipe")
+            self._buf += chunk
+        message, self._buf = self._buf.split(b"\0", 1)
+        return json.loads(message)
+
+    def call(self, method: str, params: dict | None = None, *, session: bool = False) -> dict:
+        """Send one command and return its result (events that arrive meanwhile are kept)."""
+        self._id += 1
+        message = {"id": self._id, "method": method, "params": params or {}}
+        if session:
+            message["sessionId"] = self.session
+        os.write(self._out, json.dumps(message).encode() + b"\0")
+        deadline = time.monotonic() + self.timeout
+        while True:
+            reply = self._read(deadline)
+            if reply.get("id") == self._id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply.get("result", {})
+            self.events.append(reply)
+
+    def wait_for(self, event: str) -> None:
+        """Wait for an event of the tab (one already kept counts)."""
+        deadline = time.monotonic() + self.timeout
+        while not any(
+            e.get("method") == event and e.get("sessionId") == self.session for e in self.events
+        ):
+            self.events.append(self._read(deadline))
+
+    def inspect(self, url: str, shot: Path) -> dict:
+        """Load ``url``, return :data:`INSPECT`'s findings and write a screenshot of the page to ``shot``."""
+        try:
+            self.events.clear()
+            nav = self.call("Page.navigate", {"url": url}, session=True)
+            if nav.get("errorText"):
+                return {"probe_failed": f"{url} did not load: {nav['errorText']}"}
+            self.wait_for("Page.loadEventFired")
+            status = next(
+                (
+                    e["params"]["response"]["status"]
+                    for e in self.events
+                    if e.get("method") == "Network.responseReceived"
+                    and e["params"].get("type") == "Document"
+                    and e["params"]["response"]["url"] == url
+                ),
+                None,
+            )
+            if status != 200:
+                return {"probe_failed": f"{url} answered HTTP {status}"}
+            found = self.call(
+                "Runtime.evaluate",
+                {"expression": INSPECT, "awaitPromise": True, "returnByValue": True},
+                session=True,
+            )
+            if "exceptionDetails" in found:
+                return {"probe_failed": str(found["exceptionDetails"])[:300]}
+            png = self.call("Page.captureScreenshot", {"format": "png"}, session=True)["data"]
+            shot.write_bytes(base64.b64decode(png))
+            return found["result"]["value"]
+        except (TimeoutError, RuntimeError) as err:
+            return {"probe_failed": f"{type(err).__name__}: {err}"}
+
+    def close(self) -> None:
+        try:
+            self.call("Browser.close")
+        except (TimeoutError, RuntimeError, OSError):
+            pass
+        for fd in (self._out, self._in):
+            os.close(fd)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
 
 
 #: The download menu's links (sphinx-book-theme renders each as ``<a href=... class="btn ... btn-<label>``).
@@ -270,37 +360,38 @@ def main(argv: list[str] | None = None) -> int:
         failures["(all pages)"] = [f"remote assets: {remote[:10]}"]
 
     browser = chromium()
-    (args.html / "_probe.html").write_text(PROBE)
     args.screenshots.mkdir(parents=True, exist_ok=True)
     server, port = serve(args.html)
     summary = {}
     pages = toc_pages(args.toc)
 
-    def check_page(page: str, profile: str) -> tuple[str, list[str], dict, dict, Path]:
-        url = f"http://127.0.0.1:{port}/{page}.html"
-        r = probe(browser, f"http://127.0.0.1:{port}/_probe.html?page=/{page}.html", profile)
+    def check_page(page: str, tab: Browser) -> tuple[str, list[str], dict, dict, Path]:
+        shot = args.screenshots / f"{page.replace('/', '-')}.png"
+        r = tab.inspect(f"http://127.0.0.1:{port}/{page}.html", shot)
         probs = problems_of(page, r)
         if page.startswith(args.require_math) and not r.get("mathjax"):
             probs.append("no typeset math on a chapter page")
         download_problems, downloads = check_downloads(args.html, page, port)
         probs += download_problems
-        shot = args.screenshots / f"{page.replace('/', '-')}.png"
-        screenshot(browser, url, shot, profile)
         return page, probs, r, downloads, shot
 
+    browsers: list[Browser] = []
+    tmp = tempfile.TemporaryDirectory()
     try:
-        # pages in parallel, one Chromium profile per worker (a profile is locked by the browser using it)
-        with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(args.workers) as pool:
-            profiles = queue.Queue()
+        # pages in parallel, one browser (with its own profile: a profile is locked by its browser) per
+        # worker, started here in the main thread
+        with ThreadPoolExecutor(args.workers) as pool:
+            idle = queue.Queue()
             for i in range(args.workers):
-                profiles.put(str(Path(tmp) / f"profile-{i}"))
+                browsers.append(Browser(browser, str(Path(tmp.name) / f"profile-{i}")))
+                idle.put(browsers[-1])
 
             def job(page: str):
-                profile = profiles.get()
+                tab = idle.get()
                 try:
-                    return check_page(page, profile)
+                    return check_page(page, tab)
                 finally:
-                    profiles.put(profile)
+                    idle.put(tab)
 
             for page, probs, r, downloads, shot in pool.map(job, pages):  # in the table's order
                 if probs:
@@ -319,8 +410,11 @@ def main(argv: list[str] | None = None) -> int:
                     flush=True,
                 )
     finally:
+        for b in browsers:
+            b.close()
+        tmp.cleanup()
         server.shutdown()
-        (args.html / "_probe.html").unlink(missing_ok=True)
+        server.server_close()
     (args.screenshots / "check.json").write_text(json.dumps(summary, indent=2))
     if failures:
         for page, probs in failures.items():
