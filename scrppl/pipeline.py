@@ -170,8 +170,10 @@ def stages(
             # another version of the model
             complete=(lambda: not stale_fits(out / "models"))
             if profile == "quick"
-            else lambda: not failed_fits(out / "models" / "diagnostics.json")
-            and not stale_fits(out / "models"),
+            else lambda: (
+                not failed_fits(out / "models" / "diagnostics.json")
+                and not stale_fits(out / "models")
+            ),
         ),
         Stage(
             "simulate",
@@ -210,9 +212,18 @@ def stages(
                 (out / "kway-trials.nc",),
                 (out / "sweep.nc", out / "sweep-summary.json"),
                 takes_force=True,
+                # a sweep made with other levels, trials or chains than the profile's is rerun (its
+                # cached points at the same levels and settings are reused)
+                complete=lambda: _sweep_made_with(out / "sweep-summary.json", profile),
             )
         )
     return pipeline
+
+
+def _sweep_made_with(summary: Path, profile: str) -> bool:
+    from scrppl.cli.sweep import made_with_profile
+
+    return made_with_profile(summary, profile)
 
 
 def uses_existing_dataset(root: Path) -> bool:

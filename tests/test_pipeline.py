@@ -123,7 +123,10 @@ def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_pa
     models.mkdir(parents=True)
     (out / "responses.nc").write_bytes(b"")
     (models / "diagnostics.json").write_text(json.dumps({"dpm/car": {"ok": True}}))
-    for name, version in (("hierarchical-dpm-car.nc", MODEL_VERSION), ("hierarchical-dpm-bus.nc", 1)):
+    for name, version in (
+        ("hierarchical-dpm-car.nc", MODEL_VERSION),
+        ("hierarchical-dpm-bus.nc", 1),
+    ):
         with h5py.File(models / name, "w") as fh:
             fh.attrs["meta"] = json.dumps({"model_version": version})
     assert stale_fits(models) == ["hierarchical-dpm-bus"]
@@ -131,3 +134,58 @@ def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_pa
     assert not is_current(fit)
     (models / "hierarchical-dpm-bus.nc").unlink()
     assert is_current(fit)
+
+
+def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tmp_path):
+    """Sizing a profile's sweep anew (other levels, trials or chains) must rerun the sweep stage of an
+    existing run folder, not leave the old sweep in place because its files are newer."""
+    import dataclasses
+
+    from scrppl.cli.sweep import PROFILE_SETTINGS, made_with_profile
+    from scrppl.pipeline import is_current, stages
+    from scrppl.sim.sweep import SweepSettings
+
+    want = PROFILE_SETTINGS["book"]
+    settings = SweepSettings(
+        n_trials=want["trials"], num_warmup=want["warmup"], num_samples=want["draws"],
+        num_chains=want["chains"], n_samples=want["n_samples"], max_draws=want["max_draws"],
+        retry_longer=want["retry_longer"],
+    )  # fmt: skip
+    levels = [float(x) for x in want["levels"].split(",")]
+    families = want["families"].split(",")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "kway-trials.nc").write_bytes(b"")
+    (out / "sweep.nc").write_bytes(b"")
+    summary = out / "sweep-summary.json"
+
+    def write(**change):
+        made = {"levels": levels, "families": families, "settings": dataclasses.asdict(settings)}
+        for k, v in change.items():
+            if k in made:
+                made[k] = v
+            else:
+                made["settings"] = {**made["settings"], k: v}
+        summary.write_text(json.dumps(made))
+
+    sweep = next(
+        s for s in stages(tmp_path / "data", out, seed=0, profile="book") if s.name == "sweep"
+    )
+    write()
+    assert made_with_profile(summary, "book") and is_current(sweep)
+    assert not made_with_profile(summary, "full")  # the full profile has other levels and trials
+    for change in (
+        {"levels": [0.0, 1.0, 1.4, 2.0]},
+        {"families": ["dpm"]},
+        {"n_trials": want["trials"] * 5},
+        {"num_samples": want["draws"] // 2},
+        {"num_chains": 2},
+    ):
+        write(**change)
+        assert not made_with_profile(summary, "book"), change
+        assert not is_current(sweep), change
+    summary.write_text("{not json")
+    assert not made_with_profile(summary, "book")
+    summary.unlink()
+    assert not made_with_profile(summary, "book")
+    assert not made_with_profile(out / "sweep-summary.json", "no-such-profile")
