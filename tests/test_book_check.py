@@ -6,6 +6,7 @@ output, a traceback and a Sphinx error message fails with each named. Skipped wh
 installed (``.ci/run`` and ``make book`` install it).
 """
 
+import contextlib
 import importlib.util
 import shutil
 import socket
@@ -56,21 +57,29 @@ BAD = """<!DOCTYPE html><html><head><title>Bad</title></head><body><main>
 </main></body></html>"""
 
 
-def test_browser_check_passes_a_good_page_and_names_each_fault_of_a_bad_one(tmp_path):
+@contextlib.contextmanager
+def served(tmp_path, pages: dict[str, str | bytes]):
+    """A loopback server of ``pages`` (name -> content) and a browser: ``(tab, port)``, both closed after."""
     html = tmp_path / "html"
     html.mkdir()
-    (html / "grey.png").write_bytes(_png(40, 30))
-    (html / "good.html").write_text(GOOD)
-    (html / "bad.html").write_text(BAD)
+    for name, content in pages.items():
+        path = html / name
+        path.write_bytes(content) if isinstance(content, bytes) else path.write_text(content)
     server, port = check_book.serve(html)
     tab = check_book.Browser(check_book.chromium(), str(tmp_path / "profile"), timeout=60)
     try:
-        good = tab.inspect(f"http://127.0.0.1:{port}/good.html", tmp_path / "good.png")
-        bad = tab.inspect(f"http://127.0.0.1:{port}/bad.html", tmp_path / "bad.png")
+        yield tab, port
     finally:
         tab.close()
         server.shutdown()
         server.server_close()
+
+
+def test_browser_check_passes_a_good_page_and_names_each_fault_of_a_bad_one(tmp_path):
+    pages = {"grey.png": _png(40, 30), "good.html": GOOD, "bad.html": BAD}
+    with served(tmp_path, pages) as (tab, port):
+        good = tab.inspect(f"http://127.0.0.1:{port}/good.html", tmp_path / "good.png")
+        bad = tab.inspect(f"http://127.0.0.1:{port}/bad.html", tmp_path / "bad.png")
     assert good["title"] == "A good page" and good["images"] == 1
     assert check_book.problems_of("good", good) == []
     problems = " | ".join(check_book.problems_of("bad", bad))
@@ -87,20 +96,12 @@ def test_browser_check_passes_a_good_page_and_names_each_fault_of_a_bad_one(tmp_
 
 
 def test_a_page_that_does_not_load_is_reported_not_hung(tmp_path):
-    html = tmp_path / "html"
-    html.mkdir()
-    server, port = check_book.serve(html)
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         closed = s.getsockname()[1]
-    tab = check_book.Browser(check_book.chromium(), str(tmp_path / "profile"), timeout=60)
-    try:
+    with served(tmp_path, {}) as (tab, port):
         missing = tab.inspect(f"http://127.0.0.1:{port}/missing.html", tmp_path / "x.png")
         refused = tab.inspect(f"http://127.0.0.1:{closed}/nothing.html", tmp_path / "y.png")
-    finally:
-        tab.close()
-        server.shutdown()
-        server.server_close()
     # the server's 404 page and Chromium's error page both have an <h1>: the status must fail them
     assert "HTTP 404" in check_book.problems_of("missing", missing)[0]
     assert "ERR_CONNECTION_REFUSED" in check_book.problems_of("nothing", refused)[0]
