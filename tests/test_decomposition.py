@@ -142,7 +142,8 @@ def test_rows_are_the_experiments_results_on_the_same_trials(folder, ladder):
 @pytest.mark.slow
 def test_whole_ladder_is_paired_and_above_the_bound(folder, ladder):
     ds, entry = decompose(folder, rows=D.ROWS)
-    check_bound_below_every_row(ds, entry, D.ROWS)
+    rows = [r for r in D.ROWS if r != "oracle"]  # no oracle models given: the row is left out
+    check_bound_below_every_row(ds, entry, rows)
     # the rows the fast tests ran are the same in the whole ladder: one key, the same trials
     for row in FAST_ROWS:
         np.testing.assert_array_equal(
@@ -308,3 +309,69 @@ def test_decompose_after_simulate_on_the_example_models(tmp_path):
         assert m["filter"] == name.split("+")[1]
     assert set(result["targets"]["car"]["view_information"]) == {"gaussian", "hierarchical"}
     assert "hierarchical+instance" in (out / "decomposition.md").read_text()
+
+
+def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
+    """With the run's own models as the 'oracle' the row is the confident row, trial by trial: the row
+    changes the model and nothing else."""
+    methods, k_run = experiment_methods(folder)
+    rows = ("random", "confident", "oracle")
+    ds = D.run_decomposition(
+        k_run, methods, rows=rows, oracle_methods=methods, confident=CONFIDENT, **OPTIONS
+    )
+    assert ds["row"].values.tolist() == list(rows)
+    v = ds["views_to_confidence"]
+    np.testing.assert_array_equal(v.sel(row="oracle").values, v.sel(row="confident").values)
+    # without oracle methods the row is left out
+    ds = D.run_decomposition(k_run, methods, rows=rows, confident=CONFIDENT, **OPTIONS)
+    assert ds["row"].values.tolist() == ["random", "confident"]
+
+
+def test_oracle_methods_must_be_the_methods_on_the_same_trials(folder):
+    methods, k_run = experiment_methods(folder)
+    table = load_response_table(folder / "responses.nc")
+    other, _ = load_methods(
+        D.study_keys(SEED + 1, 0)[0], folder / "models", table, "dpm", "car", TRIALS
+    )
+    with pytest.raises(ValueError, match="other trials"):
+        D.run_decomposition(k_run, methods, rows=("random", "oracle"), oracle_methods=other)
+    renamed = {f"{k}-x": v for k, v in methods.items()}
+    with pytest.raises(ValueError, match="oracle methods must be"):
+        D.run_decomposition(k_run, methods, rows=("random", "oracle"), oracle_methods=renamed)
+
+
+@pytest.mark.slow
+def test_oracle_models_are_fitted_on_the_test_instances_and_run_as_a_row(folder, tmp_path):
+    import jax
+
+    from scrppl.models.data import extract_view_data
+    from scrppl.models.gaussian import fit_gaussian
+    from scrppl.models.io import load_response_model
+    from scrppl.models.mcmc import SamplerConfig
+
+    table = load_response_table(folder / "responses.nc")
+    oracle = tmp_path / "oracle"
+    config = SamplerConfig(num_warmup=150, num_samples=150, num_chains=2)
+    report = D.fit_oracle(jax.random.key(0), table, oracle, "dpm", "car", config)
+    assert "ok" in report
+    # the oracle Gaussian is the Gaussian of the test split, not of the fit split
+    fitted = load_response_model(oracle, "gaussian", "dpm", "car").response_model
+    want, _ = fit_gaussian(extract_view_data(table, "dpm", "car", split="test")[0])
+    np.testing.assert_allclose(np.asarray(fitted.mu), np.asarray(want.mu), rtol=1e-6)
+    not_want, _ = fit_gaussian(extract_view_data(table, "dpm", "car", split="fit")[0])
+    assert not np.allclose(np.asarray(fitted.mu), np.asarray(not_want.mu))
+    ds, entry = D.decompose_target(
+        SEED, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+        kinds=["gaussian"], confident=CONFIDENT, rows=("random", "confident", "oracle", "clairvoyant"),
+        oracle_models_dir=oracle, n_boot=200,
+        **OPTIONS,
+    )  # fmt: skip
+    v = ds["views_to_confidence"]
+    assert ds["row"].values.tolist() == ["random", "confident", "oracle", "clairvoyant"]
+    assert "oracle" in entry["methods"]["gaussian+naive_bayes"]["rows"]
+    # the clairvoyant row bounds the run's model; the oracle row is bounded by the oracle model's own
+    k_trials, _ = D.study_keys(SEED, 0)
+    methods, _ = load_methods(k_trials, oracle, table, "dpm", "car", TRIALS, kinds=["gaussian"])
+    meth = methods["gaussian+naive_bayes"]
+    bound = D.clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
+    assert np.all(bound <= v.sel(row="oracle").values[0])

@@ -97,7 +97,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--rows",
         default=None,
-        help="comma-separated rows to run, in the ladder's order from 'random' (default: all six)",
+        help="comma-separated rows to run, in the ladder's order from 'random' (default: all; 'oracle' "
+        "only with --oracle)",
+    )
+    p.add_argument(
+        "--oracle",
+        action="store_true",
+        help="also fit every target's models on the held-out (test) instances themselves, into "
+        "<out>/oracle/models/, and run the 'oracle' row: the confident planner with those models "
+        "(how much a model right about the objects seen would recover)",
     )
     p.add_argument(
         "--n-boot", type=int, default=2000, help="bootstrap resamples of the intervals (2000)"
@@ -115,6 +123,7 @@ def _names(text: str | None) -> list[str] | None:
 
 def _run(args: argparse.Namespace) -> int:
     from scrppl.confident import CONFIDENT_PLANNER
+    from scrppl.models.mcmc import DEFAULT_SAMPLER
     from scrppl.sim.decomposition import ROWS, decompose_results, save_decomposition
 
     for opt in (
@@ -135,6 +144,10 @@ def _run(args: argparse.Namespace) -> int:
                 f"--confident-samples must be at least 1, got {args.confident_samples}"
             )
         confident = confident._replace(n_samples=int(args.confident_samples))
+    if args.oracle:
+        from scrppl.cli.fit import N_CHAINS, _configure_host_devices
+
+        _configure_host_devices(N_CHAINS)  # the oracle fits' chains, one per device (scrppl fit)
     out = Path(args.out)
     log = progress_log(args)
     result = decompose_results(
@@ -150,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
         lookahead_outer=args.lookahead_outer,
         confident=confident,
         rows=_names(args.rows) or ROWS,
+        oracle_sampler=DEFAULT_SAMPLER if args.oracle else None,
         n_boot=args.n_boot,
         progress=not args.quiet,
         log=log,

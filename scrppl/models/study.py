@@ -162,6 +162,7 @@ def fit_pair(
     *,
     reuse_since: float | None = None,
     progress: bool = True,
+    split: str = "fit",
 ) -> tuple[FittedPair, dict]:
     """Fit (or load) the Gaussian and the hierarchical model of one detector x target.
 
@@ -174,7 +175,7 @@ def fit_pair(
     key
         PRNG key of the hierarchical fit.
     table
-        The response table (:mod:`scrppl.responses`); its ``fit`` split is fitted.
+        The response table (:mod:`scrppl.responses`); its ``split`` is fitted.
     models_dir
         Folder of the saved models.
     detector, target
@@ -186,6 +187,9 @@ def fit_pair(
         ``None`` refits always.
     progress
         Show the sampler's progress bar.
+    split
+        The split fitted: ``"fit"`` (the experiment's models), or ``"test"`` for the oracle models of
+        :func:`scrppl.sim.decomposition.fit_oracle` (fitted on the held-out instances themselves).
 
     Returns
     -------
@@ -195,7 +199,7 @@ def fit_pair(
         The hierarchical fit's diagnostics, with its ``noncentered`` sites and retry ``attempts``.
     """
     models_dir = Path(models_dir)
-    data, meta = extract_view_data(table, detector, target, split="fit")
+    data, meta = extract_view_data(table, detector, target, split=split)
     gpath = model_path(models_dir, "gaussian", detector, target)
     hpath = model_path(models_dir, "hierarchical", detector, target)
     if not _is_current(gpath, reuse_since):

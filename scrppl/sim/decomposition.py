@@ -12,6 +12,12 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``two_step``       two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
 ``confident``      :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
                    depth 2): the metric itself
+``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
+                   (``test``) instances themselves (:func:`fit_oracle`), so what it gains over
+                   ``confident`` is what is lost to the model being wrong about the objects seen;
+                   run only when oracle models are given. Its filter is the oracle model's, so the
+                   clairvoyant bound below (the run's model's) does not bound it: it can go lower,
+                   and its share of the room above 1
 ``clairvoyant``    :func:`scrppl.sim.bounds.clairvoyant_bound`: the fewest views had every response been
                    known (no planner with the same filter does better on any trial)
 =================  ================================================================================
@@ -73,6 +79,7 @@ __all__ = [
     "decomposition_planners",
     "run_two_step_trials",
     "run_decomposition",
+    "fit_oracle",
     "summarise_decomposition",
     "view_informativeness",
     "study_keys",
@@ -83,12 +90,15 @@ __all__ = [
 ]
 
 #: The rows of the decomposition, top to bottom.
-ROWS = ("random", "greedy_joint", "greedy_class", "two_step", "confident", "clairvoyant")
+ROWS = ("random", "greedy_joint", "greedy_class", "two_step", "confident", "oracle", "clairvoyant")
 #: The rows that are planners (all but the clairvoyant bound).
 PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
 #: ``M2`` draws (the confident planner's ``M = 32`` per level).
 DEFAULT_LOOKAHEAD_SAMPLES = 32
+
+#: The stream of the oracle fits' keys: ``fold_in(fold_in(key(seed), ORACLE_STREAM), target number)``.
+ORACLE_STREAM = 0x0AC1E
 
 #: What ``decomposition.md`` calls each row.
 _ROW_TITLES = {
@@ -97,6 +107,7 @@ _ROW_TITLES = {
     "greedy_class": "greedy, H(o)",
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
+    "oracle": "confident planner, oracle model (fitted on the test instances)",
     "clairvoyant": "clairvoyant bound",
 }
 
@@ -264,6 +275,7 @@ def run_decomposition(
     lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
     confident: PlannerConfig = CONFIDENT_PLANNER,
     rows: Sequence[str] = ROWS,
+    oracle_methods: Mapping[str, Method] | None = None,
     progress: bool = False,
     chunk_size: int = 1024,
     devices: int | None = None,
@@ -287,7 +299,11 @@ def run_decomposition(
         ``M1`` of the two-step row.
     rows
         The rows to run: :data:`ROWS` or a part of it in the same order, starting with ``"random"`` (the
-        reference); "the row above" is then the previous row run.
+        reference); "the row above" is then the previous row run. Without ``oracle_methods`` the
+        ``oracle`` row is left out.
+    oracle_methods
+        The ``oracle`` row's methods: the same names, filters and trials as ``methods``, with models
+        fitted on the trials' own instances (:func:`fit_oracle`); run with the ``confident`` planner.
     progress
         Progress bars (one over the rows, the runners' over chunks).
     chunk_size, devices
@@ -310,6 +326,10 @@ def run_decomposition(
         )
     if not methods:
         raise ValueError("run_decomposition needs at least one method")
+    if oracle_methods is None:
+        rows = [r for r in rows if r != "oracle"]
+    elif "oracle" in rows:
+        _check_oracle(methods, oracle_methods)
     configs = decomposition_planners(
         n_samples, lookahead_samples=lookahead_samples, confident=confident
     )
@@ -338,8 +358,9 @@ def run_decomposition(
         else:
             # checks that every method has the same trials, and runs each with the same key
             ds = run_experiment(
-                key, methods, {row: configs[row]}, progress=progress, chunk_size=chunk_size,
-                devices=devices,
+                key, oracle_methods if row == "oracle" else methods,
+                {row: configs["confident" if row == "oracle" else row]}, progress=progress,
+                chunk_size=chunk_size, devices=devices,
             )  # fmt: skip
             views[:, j] = ds["views_to_confidence"].values[:, 0]
         seconds[j] = time.perf_counter() - t0
@@ -367,6 +388,55 @@ def run_decomposition(
             "confidence_threshold": M.CONFIDENCE,
         },
     )
+
+
+def _check_oracle(methods: Mapping[str, Method], oracle: Mapping[str, Method]) -> None:
+    """The oracle methods must be the methods with other models: same names, filters and trials."""
+    if list(oracle) != list(methods):
+        raise ValueError(
+            f"the oracle methods must be the methods' ({list(methods)}), got {list(oracle)}"
+        )
+    for name, meth in methods.items():
+        other = oracle[name]
+        if other.filter != meth.filter:
+            raise ValueError(
+                f"oracle method {name!r} uses the {other.filter!r} filter, not {meth.filter!r}"
+            )
+        a, b = meth.trials, other.trials
+        for field in ("label", "pose", "start", "responses"):
+            x, y = np.asarray(getattr(a, field)), np.asarray(getattr(b, field))
+            if x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+                raise ValueError(
+                    f"oracle method {name!r} has other trials than the method ({field} differs): "
+                    "draw both from the same table with the same key"
+                )
+
+
+def fit_oracle(
+    key: jax.Array,
+    table: xr.Dataset,
+    models_dir: str | Path,
+    detector: str,
+    target: str,
+    config=None,
+    *,
+    reuse_since: float | None = None,
+    progress: bool = False,
+) -> dict:
+    """Fit the oracle models of one detector x target: both kinds on the ``test`` split.
+
+    The same models as ``scrppl fit`` (:func:`scrppl.models.study.fit_pair`, the same diagnostics gates
+    and retries), fitted on the held-out instances the trials are drawn from and saved under
+    ``models_dir`` with the usual names. Returns the hierarchical fit's diagnostics report.
+    """
+    from scrppl.models.mcmc import DEFAULT_SAMPLER
+    from scrppl.models.study import fit_pair
+
+    _, report = fit_pair(
+        key, table, models_dir, detector, target, config or DEFAULT_SAMPLER, split="test",
+        reuse_since=reuse_since, progress=progress,
+    )  # fmt: skip
+    return report
 
 
 def _ratio_bootstrap(seed: int, gain, room, n_boot: int, level: float = 0.95):
@@ -514,6 +584,7 @@ def decompose_target(
     lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
     confident: PlannerConfig = CONFIDENT_PLANNER,
     rows: Sequence[str] = ROWS,
+    oracle_models_dir: str | Path | None = None,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -540,6 +611,9 @@ def decompose_target(
         Model kinds; each must have a fitted model.
     n_samples, lookahead_samples, lookahead_outer, confident, rows
         The planners and the rows run (:func:`run_decomposition`).
+    oracle_models_dir
+        A ``models/`` folder of oracle fits (:func:`fit_oracle`) for the ``oracle`` row; ``None``: no
+        such row.
     n_boot
         Bootstrap resamples of the intervals.
     progress, log
@@ -580,11 +654,22 @@ def decompose_target(
             f"under {models_dir} ({'; '.join(skipped)}); run `scrppl fit` first, or pass the kinds "
             f"that were fitted"
         )
+    oracle = None
+    if oracle_models_dir is not None and "oracle" in rows:
+        oracle, oracle_used = load_methods(
+            k_trials, oracle_models_dir, table, detector, target, trials, kinds=kinds,
+            max_draws=max_draws, log=note,
+        )  # fmt: skip
+        if list(oracle_used) != list(used):
+            raise FileNotFoundError(
+                f"oracle models under {oracle_models_dir} give the kinds {list(oracle_used)}, the "
+                f"run's {list(used)} ({'; '.join(skipped)}); fit them with fit_oracle"
+            )
     log(f"[decompose] {target}: {trials} trials, methods {', '.join(methods)}")
     ds = run_decomposition(
         k_run, methods, n_samples=n_samples, lookahead_samples=lookahead_samples,
-        lookahead_outer=lookahead_outer, confident=confident, rows=rows, progress=progress,
-        chunk_size=chunk_size,
+        lookahead_outer=lookahead_outer, confident=confident, rows=rows, oracle_methods=oracle,
+        progress=progress, chunk_size=chunk_size,
     )  # fmt: skip
     entry = {
         "key_index": int(target_index),
@@ -630,6 +715,7 @@ def decompose_results(
     lookahead_outer: int = DEFAULT_LOOKAHEAD_SAMPLES,
     confident: PlannerConfig = CONFIDENT_PLANNER,
     rows: Sequence[str] = ROWS,
+    oracle_sampler=None,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -659,6 +745,10 @@ def decompose_results(
         ``M`` of the greedy rows and posterior draws kept (default: the experiment's).
     lookahead_samples, lookahead_outer, confident, rows, n_boot, progress, log
         As in :func:`decompose_target`.
+    oracle_sampler
+        A :class:`~scrppl.models.mcmc.SamplerConfig`: fit the oracle models (:func:`fit_oracle`) of
+        every target into ``<results>/oracle/models/`` with it (fits newer than ``responses.nc`` that
+        passed their diagnostics are reused) and run the ``oracle`` row; ``None``: no oracle row.
 
     Returns
     -------
@@ -728,15 +818,32 @@ def decompose_results(
         },
         "targets": {},
     }
+    oracle_dir = results / "oracle" / "models" if oracle_sampler is not None else None
+    if oracle_dir is not None:
+        out["settings"]["oracle_sampler"] = oracle_sampler._asdict()
     t_start = time.perf_counter()
     for target in chosen:
         use = kinds if kinds is not None else list(summary["targets"][target].get("transforms", {}))
+        index = simulated.index(target)
+        oracle_report = None
+        if oracle_dir is not None and "oracle" in rows:
+            log(f"[decompose] {target}: oracle models, fitted on the test instances")
+            oracle_report = fit_oracle(
+                jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), ORACLE_STREAM), index),
+                table, oracle_dir, det, target, oracle_sampler,
+                reuse_since=(results / "responses.nc").stat().st_mtime, progress=progress,
+            )  # fmt: skip
         _, entry = decompose_target(
-            seed, table, models_dir, det, target, target_index=simulated.index(target),
+            seed, table, models_dir, det, target, target_index=index,
             trials=n_trials, max_draws=draws, kinds=use or DEFAULT_KINDS, n_samples=m,
             lookahead_samples=lookahead_samples, lookahead_outer=lookahead_outer,
             confident=confident, rows=rows, n_boot=n_boot, progress=progress, log=log,
+            oracle_models_dir=oracle_dir if oracle_report is not None else None,
         )  # fmt: skip
+        if oracle_report is not None:
+            entry["oracle_fit"] = {
+                k: oracle_report.get(k) for k in ("ok", "failures", "divergences", "attempts")
+            }
         out["targets"][target] = entry
     out["seconds_total"] = round(time.perf_counter() - t_start, 1)
     return out
