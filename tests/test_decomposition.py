@@ -142,7 +142,7 @@ def test_rows_are_the_experiments_results_on_the_same_trials(folder, ladder):
 @pytest.mark.slow
 def test_whole_ladder_is_paired_and_above_the_bound(folder, ladder):
     ds, entry = decompose(folder, rows=D.ROWS)
-    rows = [r for r in D.ROWS if r != "oracle"]  # no oracle models given: the row is left out
+    rows = [r for r in D.ROWS if r not in D.ORACLE_ROWS]  # no oracle models given: left out
     check_bound_below_every_row(ds, entry, rows)
     # the rows the fast tests ran are the same in the whole ladder: one key, the same trials
     for row in FAST_ROWS:
@@ -312,16 +312,17 @@ def test_decompose_after_simulate_on_the_example_models(tmp_path):
 
 
 def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
-    """With the run's own models as the 'oracle' the row is the confident row, trial by trial: the row
-    changes the model and nothing else."""
+    """With the run's own models as the 'oracle' the oracle rows are the random and confident rows,
+    trial by trial: they change the model and nothing else."""
     methods, k_run = experiment_methods(folder)
-    rows = ("random", "confident", "oracle")
+    rows = ("random", "confident", "oracle_random", "oracle")
     ds = D.run_decomposition(
         k_run, methods, rows=rows, oracle_methods=methods, confident=CONFIDENT, **OPTIONS
     )
     assert ds["row"].values.tolist() == list(rows)
     v = ds["views_to_confidence"]
     np.testing.assert_array_equal(v.sel(row="oracle").values, v.sel(row="confident").values)
+    np.testing.assert_array_equal(v.sel(row="oracle_random").values, v.sel(row="random").values)
     # without oracle methods the row is left out
     ds = D.run_decomposition(k_run, methods, rows=rows, confident=CONFIDENT, **OPTIONS)
     assert ds["row"].values.tolist() == ["random", "confident"]

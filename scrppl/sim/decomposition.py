@@ -12,6 +12,8 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``two_step``       two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
 ``confident``      :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
                    depth 2): the metric itself
+``oracle_random``  a random unseen view, the filter with an *oracle model* (below): against ``random``,
+                   what the better model does for the filter alone
 ``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
                    (``test``) instances themselves (:func:`fit_oracle`), so what it gains over
                    ``confident`` is what is lost to the model being wrong about the objects seen;
@@ -74,6 +76,7 @@ from scrppl.sim.study import DEFAULT_KINDS, load_methods
 
 __all__ = [
     "ROWS",
+    "ORACLE_ROWS",
     "PLANNER_ROWS",
     "DEFAULT_LOOKAHEAD_SAMPLES",
     "decomposition_planners",
@@ -90,7 +93,12 @@ __all__ = [
 ]
 
 #: The rows of the decomposition, top to bottom.
-ROWS = ("random", "greedy_joint", "greedy_class", "two_step", "confident", "oracle", "clairvoyant")
+ROWS = (
+    "random", "greedy_joint", "greedy_class", "two_step", "confident", "oracle_random", "oracle",
+    "clairvoyant",
+)  # fmt: skip
+#: The rows run with the oracle models (only when they are given).
+ORACLE_ROWS = ("oracle_random", "oracle")
 #: The rows that are planners (all but the clairvoyant bound).
 PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
@@ -107,6 +115,7 @@ _ROW_TITLES = {
     "greedy_class": "greedy, H(o)",
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
+    "oracle_random": "random unseen view, oracle model (fitted on the test instances)",
     "oracle": "confident planner, oracle model (fitted on the test instances)",
     "clairvoyant": "clairvoyant bound",
 }
@@ -300,10 +309,11 @@ def run_decomposition(
     rows
         The rows to run: :data:`ROWS` or a part of it in the same order, starting with ``"random"`` (the
         reference); "the row above" is then the previous row run. Without ``oracle_methods`` the
-        ``oracle`` row is left out.
+        oracle rows (:data:`ORACLE_ROWS`) are left out.
     oracle_methods
-        The ``oracle`` row's methods: the same names, filters and trials as ``methods``, with models
-        fitted on the trials' own instances (:func:`fit_oracle`); run with the ``confident`` planner.
+        The oracle rows' methods: the same names, filters and trials as ``methods``, with models
+        fitted on the trials' own instances (:func:`fit_oracle`); ``oracle_random`` runs them with the
+        random view and ``oracle`` with the ``confident`` planner.
     progress
         Progress bars (one over the rows, the runners' over chunks).
     chunk_size, devices
@@ -327,8 +337,8 @@ def run_decomposition(
     if not methods:
         raise ValueError("run_decomposition needs at least one method")
     if oracle_methods is None:
-        rows = [r for r in rows if r != "oracle"]
-    elif "oracle" in rows:
+        rows = [r for r in rows if r not in ORACLE_ROWS]
+    elif any(r in ORACLE_ROWS for r in rows):
         _check_oracle(methods, oracle_methods)
     configs = decomposition_planners(
         n_samples, lookahead_samples=lookahead_samples, confident=confident
@@ -357,10 +367,10 @@ def run_decomposition(
                 views[i, j] = met["views_to_confidence"]
         else:
             # checks that every method has the same trials, and runs each with the same key
+            planner = {"oracle": "confident", "oracle_random": "random"}.get(row, row)
             ds = run_experiment(
-                key, oracle_methods if row == "oracle" else methods,
-                {row: configs["confident" if row == "oracle" else row]}, progress=progress,
-                chunk_size=chunk_size, devices=devices,
+                key, oracle_methods if row in ORACLE_ROWS else methods, {row: configs[planner]},
+                progress=progress, chunk_size=chunk_size, devices=devices,
             )  # fmt: skip
             views[:, j] = ds["views_to_confidence"].values[:, 0]
         seconds[j] = time.perf_counter() - t0
@@ -655,7 +665,7 @@ def decompose_target(
             f"that were fitted"
         )
     oracle = None
-    if oracle_models_dir is not None and "oracle" in rows:
+    if oracle_models_dir is not None and any(r in ORACLE_ROWS for r in rows):
         oracle, oracle_used = load_methods(
             k_trials, oracle_models_dir, table, detector, target, trials, kinds=kinds,
             max_draws=max_draws, log=note,
@@ -826,7 +836,7 @@ def decompose_results(
         use = kinds if kinds is not None else list(summary["targets"][target].get("transforms", {}))
         index = simulated.index(target)
         oracle_report = None
-        if oracle_dir is not None and "oracle" in rows:
+        if oracle_dir is not None and any(r in ORACLE_ROWS for r in rows):
             log(f"[decompose] {target}: oracle models, fitted on the test instances")
             oracle_report = fit_oracle(
                 jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), ORACLE_STREAM), index),
