@@ -90,12 +90,41 @@ def test_example_models_remade_by_their_command(tmp_path):
     remade = json.loads((tmp_path / examples.INFO_FILE).read_text())
     assert remade == info
     for target in examples.EXAMPLE_TARGETS:
-        for kind in ("gaussian", "hierarchical"):
-            a = sp.example_model("dpm", target, kind).response_model
-            b = sp.example_model("dpm", target, kind, data_dir=tmp_path).response_model
-            for x, y in zip(a, b, strict=True):
-                np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-9, err_msg=kind)
+        # the Gaussian is a closed-form fit: the same numbers on every machine
+        a = sp.example_model("dpm", target, "gaussian").response_model
+        b = sp.example_model("dpm", target, "gaussian", data_dir=tmp_path).response_model
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-9, err_msg="gaussian")
+        a = sp.example_model("dpm", target, "hierarchical").response_model
+        b = sp.example_model("dpm", target, "hierarchical", data_dir=tmp_path).response_model
+        for name, x, y in zip(a._fields, a, b, strict=True):
+            same_posterior(np.asarray(x), np.asarray(y), axis=0, what=f"{target} {name}")
     a, b = sp.example_kway_model(), sp.example_kway_model(data_dir=tmp_path)
-    assert a.info == b.info
-    for x, y in zip(a.model, b.model, strict=True):
-        np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=1e-9)
+    # the same record, but for the diagnostics' values (other draws, see same_posterior): both pass
+    assert {k: v for k, v in a.info.items() if k != "diagnostics"} == {
+        k: v for k, v in b.info.items() if k != "diagnostics"
+    }
+    assert a.info["diagnostics"].keys() == b.info["diagnostics"].keys()
+    assert all(d["ok"] for d in b.info["diagnostics"].values())
+    for name, x, y in zip(a.model._fields, a.model, b.model, strict=True):
+        same_posterior(np.asarray(x), np.asarray(y), axis=1, what=f"K-way {name}")
+
+
+def same_posterior(x, y, axis: int, what: str) -> None:
+    """Two sets of posterior draws (along ``axis``) from the same posterior.
+
+    On the machine that made the shipped models the remade draws are the same bytes. On another CPU
+    model they are not: an AMD EPYC and an Intel Xeon, both with AVX-512 and the portable numerics, gave
+    other NUTS trajectories (the Gaussians stay identical), and the draws then differ as independent draws
+    of one posterior do. So each element's mean over the draws must agree within 5 standard errors of
+    a difference of two means of ``n`` independent draws; a model fitted to other data or by another model
+    is many of them away.
+    """
+    assert x.shape == y.shape, what
+    assert np.all(np.isfinite(y)), what
+    if np.array_equal(x, y):
+        return
+    n = x.shape[axis]
+    sd = np.sqrt((x.var(axis=axis) + y.var(axis=axis)) / 2) + 1e-9
+    z = np.abs(x.mean(axis=axis) - y.mean(axis=axis)) / (sd * np.sqrt(2 / n))
+    assert z.max() < 5.0, f"{what}: draws' means {z.max():.1f} standard errors apart"
