@@ -238,7 +238,7 @@ class Browser:
             png = self.call("Page.captureScreenshot", {"format": "png"}, session=True)["data"]
             shot.write_bytes(base64.b64decode(png))
             return found["result"]["value"]
-        except (TimeoutError, RuntimeError) as err:
+        except (TimeoutError, RuntimeError, OSError) as err:  # OSError: the browser's pipe broke
             return {"probe_failed": f"{type(err).__name__}: {err}"}
 
     def close(self) -> None:

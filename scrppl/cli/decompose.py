@@ -97,15 +97,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--rows",
         default=None,
-        help="comma-separated rows to run, in the ladder's order from 'random' (default: all; 'oracle' "
-        "only with --oracle)",
+        help="comma-separated rows to run, in the ladder's order from 'random' (default: all; 'oracle_random' "
+        "and 'oracle' only with --oracle)",
     )
     p.add_argument(
         "--oracle",
         action="store_true",
         help="also fit every target's models on the held-out (test) instances themselves, into "
-        "<out>/oracle/models/, and run the 'oracle' row: the confident planner with those models "
-        "(how much a model right about the objects seen would recover)",
+        "<out>/oracle/models/, and run the rows 'oracle_random' (random views) and 'oracle' (the "
+        "confident planner) with those models: how much a model right about the objects seen would "
+        "recover",
     )
     p.add_argument(
         "--n-boot", type=int, default=2000, help="bootstrap resamples of the intervals (2000)"

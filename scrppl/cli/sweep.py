@@ -23,7 +23,13 @@ from pathlib import Path
 
 from scrppl.cli._common import add_common, dataset_root, preset_of, progress_log
 
-__all__ = ["register", "PROFILE_SETTINGS", "SWEEP_PROFILES", "made_with_profile"]
+__all__ = [
+    "register",
+    "PROFILE_SETTINGS",
+    "SWEEP_PROFILES",
+    "made_with_profile",
+    "profile_settings",
+]
 
 #: Profiles of the sweep; ``tiny`` is the few-second setting the tests use (on a dataset given by --root).
 SWEEP_PROFILES = ("quick", "book", "full", "tiny")
@@ -58,30 +64,43 @@ PROFILE_SETTINGS = {
 DEFAULT_N_TARGETS = 3
 
 
+def profile_settings(settings: dict, trials: int | None = None):
+    """A profile's :data:`PROFILE_SETTINGS` entry as :class:`~scrppl.sim.sweep.SweepSettings`."""
+    from scrppl.sim.sweep import SweepSettings
+
+    return SweepSettings(
+        n_trials=settings["trials"] if trials is None else int(trials),
+        num_warmup=settings["warmup"],
+        num_samples=settings["draws"],
+        num_chains=settings["chains"],
+        n_samples=settings["n_samples"],
+        max_draws=settings["max_draws"],
+        retry_longer=settings["retry_longer"],
+    )
+
+
 def made_with_profile(summary_path: str | Path, profile: str) -> bool:
     """Whether the sweep summary at ``summary_path`` was made with ``profile``'s current settings.
 
-    Compares its levels, families and sampler, trial and planner settings with
+    Compares its levels, families and :func:`profile_settings` (all but the bootstrap's resamples) with
     :data:`PROFILE_SETTINGS` (a sweep sized anew, or one run with other options, is not the profile's);
     false for a missing or unreadable summary or an unknown profile. ``scrppl reproduce`` reruns its
     sweep stage (resuming every cached point) when this is false.
     """
+    import dataclasses
+
     if profile not in PROFILE_SETTINGS:
         return False
+    want = PROFILE_SETTINGS[profile]
+    expected = dataclasses.asdict(profile_settings(want))
+    expected.pop("n_boot")
     try:
         summary = json.loads(Path(summary_path).read_text())
         made = summary["settings"]
-        want = PROFILE_SETTINGS[profile]
         return (
             [float(x) for x in summary["levels"]] == _levels(want["levels"])
             and list(summary["families"]) == _names(want["families"])
-            and made["n_trials"] == want["trials"]
-            and made["num_warmup"] == want["warmup"]
-            and made["num_samples"] == want["draws"]
-            and made["num_chains"] == want["chains"]
-            and made["n_samples"] == want["n_samples"]
-            and made["max_draws"] == want["max_draws"]
-            and made["retry_longer"] == want["retry_longer"]
+            and all(made[k] == v for k, v in expected.items())
         )
     except (OSError, ValueError, KeyError, TypeError):
         return False
@@ -181,7 +200,7 @@ def handler(args: argparse.Namespace) -> int:
 
     matplotlib.use("Agg")
     from scrppl.sim.study import choose_targets
-    from scrppl.sim.sweep import SweepSettings, run_sweep, save_sweep
+    from scrppl.sim.sweep import run_sweep, save_sweep
 
     out = Path(args.out)
     log = progress_log(args)
@@ -201,15 +220,7 @@ def handler(args: argparse.Namespace) -> int:
         requested = _names(args.targets)
     targets = choose_targets(available, requested, n_default=DEFAULT_N_TARGETS)
     trials = settings["trials"] if args.trials is None else int(args.trials)
-    sweep_settings = SweepSettings(
-        n_trials=trials,
-        num_warmup=settings["warmup"],
-        num_samples=settings["draws"],
-        num_chains=settings["chains"],
-        n_samples=settings["n_samples"],
-        max_draws=settings["max_draws"],
-        retry_longer=settings["retry_longer"],
-    )
+    sweep_settings = profile_settings(settings, trials)
     log(
         f"[sweep] levels {levels} x families {families} x targets {targets}, {trials} trials per point"
     )

@@ -851,6 +851,11 @@ def decompose_results(
             oracle_models_dir=oracle_dir if oracle_report is not None else None,
         )  # fmt: skip
         if oracle_report is not None:
+            if not oracle_report.get("ok", False):
+                log(
+                    f"[decompose] {target}: warning: an oracle fit failed its diagnostics "
+                    f"({oracle_report.get('failures')}); its rows are reported with that fit"
+                )
             entry["oracle_fit"] = {
                 k: oracle_report.get(k) for k in ("ok", "failures", "divergences", "attempts")
             }
