@@ -1,0 +1,168 @@
+"""Per-category K-way models (:mod:`scrppl.kway.profiles`) against the binary fits read K-way.
+
+On a finished run's response table and binary fits (``RESULTS/responses.nc``, ``RESULTS/models``) this fits
+the per-category model of every target detector of the DPM family (cached under ``--cache``), then
+compares the two K-way models on the same held-out instances and trials:
+
+* held-out joint log predictive density per target detector and true category
+  (:func:`scrppl.kway.profiles.kway_heldout_lpd`, with the experiment's draws per target);
+* K-way accuracy after 1, 2, 4 and 8 views with random and planned views, and the paired difference
+  random K-way minus one-vs-rest (the issue's criterion) with bootstrap 95 % intervals;
+* per held-out instance, the share of its trials classified correctly after 1 and 8 random views, so that a
+  change of accuracy can be traced to the instances that cause it.
+
+``--shared-noise`` fits the variant with one noise sd and instance sd for all non-target categories.
+Writes (or updates) the key ``<profile>/<variant>`` of ``benchmarks/results/kway-profiles.json``. Run:
+``python benchmarks/bench_kway_profiles.py RESULTS [--cache DIR] [--trials N] [--draws N]
+[--shared-noise]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import xarray as xr  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results" / "kway-profiles.json"
+STEPS = (1, 2, 4, 8)
+
+
+def main() -> None:
+    from scrppl.kway.experiment import (
+        compare_kway,
+        make_kway_trials,
+        run_kway_experiment,
+        summarise_kway,
+    )
+    from scrppl.kway.models import kway_from_fits, stack_models
+    from scrppl.kway.profiles import (
+        fit_category_profiles,
+        kway_heldout_lpd,
+        load_profiles,
+        profile_data,
+        profile_response_model,
+        profiles_path,
+        save_profiles,
+    )
+    from scrppl.kway.study import _binary_models
+    from scrppl.models.mcmc import SamplerConfig
+    from scrppl.planning import PlannerConfig
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results", type=Path, help="a finished run's output folder")
+    ap.add_argument(
+        "--cache", type=Path, default=None, help="where the fits go (default RESULTS/profiles)"
+    )
+    ap.add_argument("--trials", type=int, default=2000)
+    ap.add_argument("--draws", type=int, default=8, help="posterior draws per target detector")
+    ap.add_argument("--shared-noise", action="store_true")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+
+    table = xr.open_dataset(args.results / "responses.nc").load()
+    run = (
+        json.loads((args.results / "run.json").read_text())
+        if (args.results / "run.json").exists()
+        else {}
+    )
+    cats = [str(c) for c in table["category"].values]
+    variant = "shared-noise" if args.shared_noise else "category-noise"
+    cache = args.cache or args.results / "profiles" / variant
+    cache.mkdir(parents=True, exist_ok=True)
+    config = SamplerConfig(num_warmup=500, num_samples=1000)
+    trees, fits = {}, {}
+    for j, c in enumerate(cats):
+        path = profiles_path(cache, "dpm", c)
+        if path.exists():
+            trees[c] = load_profiles(path)
+            continue
+        t0 = time.perf_counter()
+        trees[c] = fit_category_profiles(
+            jax.random.fold_in(jax.random.key(args.seed), j),
+            profile_data(table, "dpm", c),
+            config,
+            category_noise=not args.shared_noise,
+            progress=False,
+        )
+        save_profiles(path, trees[c])
+        fits[c] = round(time.perf_counter() - t0, 1)
+    for c in cats:
+        meta = json.loads(trees[c].attrs["meta"])
+        print(c, [(a["target_accept_prob"], a["num_samples"], a["ok"]) for a in meta["attempts"]])
+    new = stack_models([profile_response_model(trees[c], cats) for c in cats], args.draws)
+    old = kway_from_fits(args.results / "models", "dpm", cats, n_draws=args.draws).model
+    binary = _binary_models(args.results / "models", "dpm", cats, args.draws)
+    trials = make_kway_trials(jax.random.key(args.seed + 1), table, "dpm", args.trials)
+    out = {
+        "profile": run.get("profile"),
+        "trials": args.trials,
+        "draws": args.draws,
+        "seed": args.seed,
+        "fit_seconds": fits or None,
+        "attempts": {
+            c: [
+                {k: a[k] for k in ("target_accept_prob", "num_samples", "ok", "divergences")}
+                for a in json.loads(trees[c].attrs["meta"])["attempts"]
+            ]
+            for c in cats
+        },
+        "diagnostics_ok": {c: json.loads(trees[c].attrs["diagnostics"])["ok"] for c in cats},
+        "machine": f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}",
+    }
+    lpd = {}
+    for name, model in (("profiles", new), ("binary", old)):
+        got = kway_heldout_lpd(model, table, "dpm")
+        lpd[name] = got
+        ds = run_kway_experiment(
+            jax.random.key(args.seed + 2),
+            model,
+            trials,
+            binary=binary,
+            categories=cats,
+            config=PlannerConfig(objective="class", n_samples=256),
+            keep_probabilities=False,
+        )
+        s = summarise_kway(ds)
+        d = compare_kway(ds, "random", "one_vs_rest")["accuracy"]
+        per = {}
+        for inst in sorted(
+            {
+                (str(c), int(i))
+                for c, i in zip(ds["true_category"].values, ds["instance"].values, strict=True)
+            }
+        ):
+            sel = (ds["true_category"].values == inst[0]) & (ds["instance"].values == inst[1])
+            corr = ds["correct"].sel({"method": "random"}).values[sel]
+            per[f"{inst[0]}/{inst[1]}"] = [round(float(corr[:, k - 1].mean()), 3) for k in (1, 8)]
+        out[name] = {
+            "heldout_lpd_total": round(float(got["lpd_sum"].sum()), 2),
+            "accuracy": {
+                m: [round(float(s["accuracy"].sel({"method": m, "step": k})), 4) for k in STEPS]
+                for m in ("random", "planning", "one_vs_rest")
+            },
+            "random_minus_one_vs_rest": {
+                k: [round(d[q][k - 1], 4) for q in ("mean", "lo", "hi")] for k in STEPS
+            },
+            "per_instance_random_correct_after_1_and_8": per,
+        }
+        print(name, json.dumps(out[name]["accuracy"]), out[name]["heldout_lpd_total"])
+    diff = lpd["profiles"]["lpd"] - lpd["binary"]["lpd"]
+    out["heldout_lpd_per_view_profiles_minus_binary"] = {
+        t: {c: round(float(diff.sel(target=t, category=c)), 3) for c in cats} for t in cats
+    }
+    record = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    record[f"{run.get('profile', 'unknown')}/{variant}"] = out
+    RESULTS.write_text(json.dumps(record, indent=1) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
