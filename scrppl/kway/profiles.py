@@ -73,7 +73,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 from collections.abc import Sequence
 
 import jax
@@ -87,9 +86,11 @@ from numpyro.infer.reparam import LocScaleReparam
 
 from scrppl.models.data import ViewData
 from scrppl.models.hierarchical import (
+    FREE_PARAMETERS,
     SIGMA_SPREAD_SCALE,
     choose_noncentered,
     choose_target_accept,
+    class_terms,
     fourier_basis,
     noise_floor,
     standardisation,
@@ -123,19 +124,9 @@ PROFILE_MODEL_VERSION = 1
 #: view terms may differ from the non-target mean by about half the responses' overall sd a priori.
 DEVIATION_SCALE = 0.5
 
-#: Sampled sites (the parameters the diagnostics gates are computed on).
-PROFILE_PARAMETERS = (
-    "alpha",
-    "eta",
-    "coef",
-    "elevation_contrast",
-    "scale_contrast",
-    "sigma_class",
-    "sigma_spread",
-    "log_sigma_contrast",
-    "instance_sd",
-    "category_sd",
-    "category_contrast",
+#: Sampled sites (the parameters the diagnostics gates are computed on): the binary model's and the
+#: non-target categories' deviations with their scales.
+PROFILE_PARAMETERS = FREE_PARAMETERS + (
     "profile_sd",
     "profile_contrast",
     "view_sd",
@@ -223,29 +214,8 @@ def category_profile_model(
     basis, harmonic = jnp.asarray(basis), jnp.asarray(harmonic)
 
     # the two shared groups: 0 = mean of the non-target categories, 1 = the target's own category
-    alpha = numpyro.sample("alpha", dist.Normal(0.0, 2.0).expand([2]))
-    mu = jnp.broadcast_to(alpha[:, None, None, None], (2, n_az, n_el, n_sc))
-    if basis.shape[1]:
-        eta = numpyro.sample("eta", dist.HalfNormal(1.0).expand([2]))
-        coef = numpyro.sample("coef", dist.Normal(0.0, eta[:, None] / harmonic))
-        mu = mu + (coef @ basis.T)[:, :, None, None]
+    mu, log_sigma = class_terms(n_az, n_el, n_sc, azimuth_noise)
     h_el, h_sc = jnp.asarray(sum_to_zero_basis(n_el)), jnp.asarray(sum_to_zero_basis(n_sc))
-    if n_el > 1:
-        elev = numpyro.sample("elevation_contrast", dist.Normal(0.0, 1.0).expand([2, n_el - 1]))
-        mu = mu + (elev @ h_el.T)[:, None, :, None]
-    if n_sc > 1:
-        scl = numpyro.sample("scale_contrast", dist.Normal(0.0, 1.0).expand([2, n_sc - 1]))
-        mu = mu + (scl @ h_sc.T)[:, None, None, :]
-    sigma_class = numpyro.sample("sigma_class", dist.LogNormal(math.log(0.5), 1.0).expand([2]))
-    log_sigma = jnp.broadcast_to(jnp.log(sigma_class)[:, None], (2, n_az))
-    if n_az > 1:
-        spread = numpyro.sample("sigma_spread", dist.HalfNormal(SIGMA_SPREAD_SCALE).expand([2]))
-        dev = numpyro.sample(
-            "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
-        )
-        if azimuth_noise is not None:
-            dev = dev * jnp.asarray(azimuth_noise, dev.dtype)[:, None]
-        log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
     log_tau = jnp.log(numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2])))
 
     # the non-target categories' deviations from their mean, pooled by learnt scales

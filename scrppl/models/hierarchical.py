@@ -112,6 +112,7 @@ __all__ = [
     "choose_target_accept",
     "fourier_basis",
     "sum_to_zero_basis",
+    "class_terms",
     "viewpoint_model",
     "make_model",
     "choose_noncentered",
@@ -250,6 +251,48 @@ def sum_to_zero_basis(n: int) -> np.ndarray:
     return q[:, 1:]
 
 
+def class_terms(n_az: int, n_el: int, n_sc: int, azimuth_noise=None):
+    """Sample the two classes' mean response and log noise sd (standardised scale; module docstring).
+
+    Sites ``alpha``, ``eta``, ``coef``, ``elevation_contrast``, ``scale_contrast``, ``sigma_class``,
+    ``sigma_spread``, ``log_sigma_contrast``, in that order; shared by :func:`viewpoint_model` and the
+    per-category K-way model (``scrppl.kway.profiles``).
+
+    Returns
+    -------
+    mu
+        ``(2, A, E, S)``.
+    log_sigma
+        ``(2, A)``: log noise sd before the noise floor.
+    """
+    basis, harmonic = fourier_basis(n_az)
+    alpha = numpyro.sample("alpha", dist.Normal(0.0, 2.0).expand([2]))
+    mu = jnp.broadcast_to(alpha[:, None, None, None], (2, n_az, n_el, n_sc))
+    if basis.shape[1]:
+        eta = numpyro.sample("eta", dist.HalfNormal(1.0).expand([2]))
+        coef = numpyro.sample("coef", dist.Normal(0.0, eta[:, None] / jnp.asarray(harmonic)))
+        mu = mu + (coef @ jnp.asarray(basis).T)[:, :, None, None]
+    if n_el > 1:
+        elev = numpyro.sample("elevation_contrast", dist.Normal(0.0, 1.0).expand([2, n_el - 1]))
+        mu = mu + (elev @ jnp.asarray(sum_to_zero_basis(n_el)).T)[:, None, :, None]
+    if n_sc > 1:
+        scl = numpyro.sample("scale_contrast", dist.Normal(0.0, 1.0).expand([2, n_sc - 1]))
+        mu = mu + (scl @ jnp.asarray(sum_to_zero_basis(n_sc)).T)[:, None, None, :]
+    sigma_class = numpyro.sample("sigma_class", dist.LogNormal(math.log(0.5), 1.0).expand([2]))
+    log_sigma = jnp.broadcast_to(jnp.log(sigma_class)[:, None], (2, n_az))
+    if n_az > 1:
+        spread = numpyro.sample("sigma_spread", dist.HalfNormal(SIGMA_SPREAD_SCALE).expand([2]))
+        dev = numpyro.sample(
+            "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
+        )
+        if (
+            azimuth_noise is not None
+        ):  # a class with one noise sd: its contrasts keep their prior only
+            dev = dev * jnp.asarray(azimuth_noise, dev.dtype)[:, None]
+        log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
+    return mu, log_sigma
+
+
 def viewpoint_model(
     y,
     observed,
@@ -293,29 +336,7 @@ def viewpoint_model(
     """
     n_inst, n_az, n_el, n_sc = observed.shape
     n_neg = neg_onehot.shape[1]
-    basis, harmonic = fourier_basis(n_az)
-    alpha = numpyro.sample("alpha", dist.Normal(0.0, 2.0).expand([2]))
-    mu = jnp.broadcast_to(alpha[:, None, None, None], (2, n_az, n_el, n_sc))
-    if basis.shape[1]:
-        eta = numpyro.sample("eta", dist.HalfNormal(1.0).expand([2]))
-        coef = numpyro.sample("coef", dist.Normal(0.0, eta[:, None] / jnp.asarray(harmonic)))
-        mu = mu + (coef @ jnp.asarray(basis).T)[:, :, None, None]
-    if n_el > 1:
-        elev = numpyro.sample("elevation_contrast", dist.Normal(0.0, 1.0).expand([2, n_el - 1]))
-        mu = mu + (elev @ jnp.asarray(sum_to_zero_basis(n_el)).T)[:, None, :, None]
-    if n_sc > 1:
-        scl = numpyro.sample("scale_contrast", dist.Normal(0.0, 1.0).expand([2, n_sc - 1]))
-        mu = mu + (scl @ jnp.asarray(sum_to_zero_basis(n_sc)).T)[:, None, None, :]
-    sigma_class = numpyro.sample("sigma_class", dist.LogNormal(math.log(0.5), 1.0).expand([2]))
-    log_sigma = jnp.broadcast_to(jnp.log(sigma_class)[:, None], (2, n_az))
-    if n_az > 1:
-        spread = numpyro.sample("sigma_spread", dist.HalfNormal(SIGMA_SPREAD_SCALE).expand([2]))
-        dev = numpyro.sample(
-            "log_sigma_contrast", dist.Normal(0.0, spread[:, None]).expand([2, n_az - 1])
-        )
-        if azimuth_noise is not None:  # a class with one noise sd: its contrasts keep their prior only
-            dev = dev * jnp.asarray(azimuth_noise, dev.dtype)[:, None]
-        log_sigma = log_sigma + dev @ jnp.asarray(sum_to_zero_basis(n_az)).T
+    mu, log_sigma = class_terms(n_az, n_el, n_sc, azimuth_noise)
     sigma = jnp.sqrt(jnp.exp(2.0 * log_sigma) + (floor / scale) ** 2)
     tau = numpyro.sample("instance_sd", dist.HalfNormal(1.0).expand([2]))
     offset = jnp.zeros(n_inst)
