@@ -8,6 +8,8 @@ compares the two K-way models on the same held-out instances and trials:
   (:func:`scrppl.kway.profiles.kway_heldout_lpd`, with the experiment's draws per target);
 * K-way accuracy after 1, 2, 4 and 8 views with random and planned views, and the paired difference
   random K-way minus one-vs-rest (the issue's criterion) with bootstrap 95 % intervals;
+* expected calibration error of the class probabilities after 1, 2 and 4 views (top-label and
+  class-wise, :func:`scrppl.kway.experiment.kway_calibration`);
 * per held-out instance, the share of its trials classified correctly after 1 and 8 random views, so that a
   change of accuracy can be traced to the instances that cause it.
 
@@ -38,6 +40,7 @@ STEPS = (1, 2, 4, 8)
 def main() -> None:
     from scrppl.kway.experiment import (
         compare_kway,
+        kway_calibration,
         make_kway_trials,
         run_kway_experiment,
         summarise_kway,
@@ -128,8 +131,9 @@ def main() -> None:
             binary=binary,
             categories=cats,
             config=PlannerConfig(objective="class", n_samples=256),
-            keep_probabilities=False,
+            keep_probabilities=True,
         )
+        cal = kway_calibration(ds)
         s = summarise_kway(ds)
         d = compare_kway(ds, "random", "one_vs_rest")["accuracy"]
         per = {}
@@ -152,6 +156,14 @@ def main() -> None:
                 k: [round(d[q][k - 1], 4) for q in ("mean", "lo", "hi")] for k in STEPS
             },
             "per_instance_random_correct_after_1_and_8": per,
+            "ece_top_after_1_2_4": {
+                m: [round(float(x), 4) for x in cal["ece_top"].sel({"method": m}).values]
+                for m in ("random", "planning", "one_vs_rest")
+            },
+            "ece_classwise_after_1_2_4": {
+                m: [round(float(x), 4) for x in cal["ece_classwise"].sel({"method": m}).values]
+                for m in ("random", "planning", "one_vs_rest")
+            },
         }
         print(name, json.dumps(out[name]["accuracy"]), out[name]["heldout_lpd_total"])
     diff = lpd["profiles"]["lpd"] - lpd["binary"]["lpd"]

@@ -296,3 +296,55 @@ def test_nuts_recovers_each_non_target_categorys_own_viewpoint_profile():
     lpd_new = kway_heldout_lpd(new, table, "dpm")["lpd"].sel(target="p")
     lpd_old = kway_heldout_lpd(old, table, "dpm")["lpd"].sel(target="p")
     assert (lpd_new.sel(category=["q", "r"]) > lpd_old.sel(category=["q", "r"]) + 0.5).all()
+
+
+def _prob_experiment(p, truth, cats):
+    """A K-way experiment Dataset with given p_class (method, trial, step, K) and true categories."""
+    n_m, n_r, n_s, _ = p.shape
+    return xr.Dataset(
+        {"p_class": (("method", "trial", "step", "category"), p)},
+        coords={
+            "method": ["planning", "random", "one_vs_rest"][:n_m],
+            "step": np.arange(1, n_s + 1),
+            "category": cats,
+            "category_index": ("trial", truth),
+        },
+    )
+
+
+def test_calibration_of_an_overconfident_and_a_calibrated_filter(rng):
+    """Closed forms: a filter that always says 0.9 for an answer right 60 % of the time has top-label
+    ECE 0.3; probabilities from which the truth is drawn have ECE near zero (sampling error only)."""
+    from scrppl.kway.experiment import kway_calibration
+
+    n, k = 20000, 3
+    truth = np.arange(n) % k
+    over = np.full((n, k), 0.05)
+    right = rng.random(n) < 0.6
+    guess = np.where(right, truth, (truth + 1) % k)
+    over[np.arange(n), guess] = 0.9
+    logits = rng.normal(0, 2, size=(n, k))
+    cal = np.exp(logits) / np.exp(logits).sum(1, keepdims=True)
+    drawn = (rng.random(n)[:, None] > np.cumsum(cal, 1)).sum(1)
+    p = np.stack([over, cal])[:, :, None, :].repeat(2, axis=2)
+    truth2 = np.stack([truth, drawn])
+    # one experiment per truth vector (the truth is per trial, shared by the methods)
+    ece_over = kway_calibration(_prob_experiment(p[:1], truth2[0], list("abc")), steps=(1, 2))
+    ece_cal = kway_calibration(_prob_experiment(p[1:], truth2[1], list("abc")), steps=(1,))
+    np.testing.assert_allclose(ece_over["ece_top"].values, 0.3, atol=0.01)
+    # class-wise: the 0.9 bin is right 60 % (|0.9 - 0.6| on n of 3n entries), the 0.05 bin is right
+    # 20 % (0.4 n of 2n entries: |0.05 - 0.2| on 2n of 3n)
+    np.testing.assert_allclose(ece_over["ece_classwise"].values, 0.3 / 3 + 0.15 * 2 / 3, atol=0.01)
+    assert float(ece_cal["ece_top"].max()) < 0.02 and float(ece_cal["ece_classwise"].max()) < 0.02
+    assert int(ece_over["count"].sum()) == 2 * n
+    np.testing.assert_allclose(float(ece_over["frac"][0, 0, 9]), 0.6, atol=0.01)
+
+
+def test_calibration_needs_the_class_probabilities():
+    from scrppl.kway.experiment import kway_calibration
+
+    ds = _prob_experiment(np.full((1, 4, 1, 2), 0.5), np.zeros(4, int), ["a", "b"]).drop_vars(
+        "p_class"
+    )
+    with pytest.raises(ValueError, match="keep_probabilities=True"):
+        kway_calibration(ds)

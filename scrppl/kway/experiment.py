@@ -55,6 +55,8 @@ __all__ = [
     "summarise_kway",
     "compare_kway",
     "confusion_matrices",
+    "CALIBRATION_STEPS",
+    "kway_calibration",
 ]
 
 #: Methods of the experiment, in the order of its ``method`` dimension.
@@ -512,4 +514,62 @@ def confusion_matrices(ds: xr.Dataset, steps: Sequence[int] = CONFUSION_STEPS) -
         dims=("method", "step", "true", "predicted"),
         coords={"method": ds["method"].values, "step": steps, "true": cats, "predicted": cats},
         name="confusion",
+    )
+
+
+#: Views after which :func:`kway_calibration` measures calibration by default.
+CALIBRATION_STEPS = (1, 2, 4)
+
+
+def kway_calibration(
+    ds: xr.Dataset, steps: Sequence[int] = CALIBRATION_STEPS, n_bins: int = 10
+) -> xr.Dataset:
+    """Calibration of the class probabilities ``p_class`` after the given numbers of views.
+
+    Two expected calibration errors over ``n_bins`` equal-width bins
+    (:func:`~scrppl.sim.metrics.expected_calibration_error`), per method and step:
+
+    * ``ece_top`` -- of the top-label probability ``max_k p(k)`` against whether that label is right
+      (the reliability of the filter's confidence in its answer);
+    * ``ece_classwise`` -- of all ``K`` probabilities of every trial against the one-hot truth.
+
+    and the top-label reliability diagram: ``mean_p``, ``frac`` (NaN in an empty bin) and ``count``
+    ``(method, step, bin)``.
+
+    Raises
+    ------
+    ValueError
+        If ``ds`` has no ``p_class`` (run the experiment with ``keep_probabilities=True``).
+    """
+    if "p_class" not in ds:
+        raise ValueError(
+            "the experiment kept no class probabilities (p_class); rerun it with keep_probabilities=True"
+        )
+    steps = [int(s) for s in steps if int(s) <= ds.sizes["step"]]
+    methods = ds["method"].values
+    truth = ds["category_index"].values
+    n_k = ds.sizes["category"]
+    shape = (len(methods), len(steps))
+    top, classwise = np.zeros(shape), np.zeros(shape)
+    diagram = np.zeros((3, *shape, n_bins))
+    for i, m in enumerate(methods):
+        for j, s in enumerate(steps):
+            p = ds["p_class"].sel({"method": m, "step": s}).values.astype(np.float64)
+            onehot = np.eye(n_k)[truth]
+            conf = p.max(-1)
+            right = (p.argmax(-1) == truth).astype(float)
+            top[i, j] = M.expected_calibration_error(conf, right, n_bins)
+            classwise[i, j] = M.expected_calibration_error(p, onehot, n_bins)
+            diagram[:, i, j] = M.reliability(conf, right, n_bins)
+    dims = ("method", "step")
+    return xr.Dataset(
+        {
+            "ece_top": (dims, top),
+            "ece_classwise": (dims, classwise),
+            **{
+                name: ((*dims, "bin"), diagram[k])
+                for k, name in enumerate(("mean_p", "frac", "count"))
+            },
+        },
+        coords={"method": methods, "step": steps, "bin": np.arange(n_bins)},
     )
