@@ -11,8 +11,8 @@ detectors of one family, and the robot plans where to look to tell the categorie
   collapsed (moment-matched) posterior update, random baseline;
 * ``scrppl.kway.profiles`` -- a per-category model (every non-target category its own viewpoint profile,
   partially pooled), fitted by NUTS, and the held-out joint LPD of any K-way model; not yet used by the
-  pipeline (on the book table it fits held-out data better but classifies one held-out instance worse,
-  see its docstring);
+  pipeline (it predicts held-out responses better but grows overconfident as views accumulate, see its
+  docstring);
 * :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
   binary filters, accuracy, confusion matrices.
 """
