@@ -10,6 +10,9 @@ compares the two K-way models on the same held-out instances and trials:
   random K-way minus one-vs-rest (the issue's criterion) with bootstrap 95 % intervals;
 * expected calibration error of the class probabilities after 1, 2 and 4 views (top-label and
   class-wise, :func:`scrppl.kway.experiment.kway_calibration`);
+* a posterior predictive check of what the filter uses: normal scores of each held-out view given the
+  views before it on its ring (:func:`scrppl.kway.profiles.sequential_normal_scores`), their mean square
+  per view, the share beyond 3 and their kurtosis (1, 0.27 % and 3 for a calibrated Gaussian predictive);
 * per held-out instance, the share of its trials classified correctly after 1 and 8 random views, so that a
   change of accuracy can be traced to the instances that cause it.
 
@@ -31,6 +34,7 @@ from pathlib import Path
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
+import numpy as np  # noqa: E402
 import xarray as xr  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "kway-profiles.json"
@@ -45,7 +49,7 @@ def main() -> None:
         run_kway_experiment,
         summarise_kway,
     )
-    from scrppl.kway.models import kway_from_fits, stack_models
+    from scrppl.kway.models import kway_from_fits, stack_models, target_model
     from scrppl.kway.profiles import (
         fit_category_profiles,
         kway_heldout_lpd,
@@ -54,6 +58,7 @@ def main() -> None:
         profile_response_model,
         profiles_path,
         save_profiles,
+        sequential_normal_scores,
     )
     from scrppl.kway.study import _binary_models
     from scrppl.models.mcmc import SamplerConfig
@@ -124,6 +129,19 @@ def main() -> None:
     for name, model in (("profiles", new), ("binary", old)):
         got = kway_heldout_lpd(model, table, "dpm")
         lpd[name] = got
+        scores = []
+        for t, c in enumerate(cats):
+            held = profile_data(table, "dpm", c, split="test")
+            scores.append(
+                sequential_normal_scores(
+                    target_model(model, t),
+                    held["data"].y,
+                    held["data"].observed,
+                    held["category"],
+                ).reshape(-1, table.sizes["azimuth"])
+            )
+        z = np.concatenate(scores)
+        finite = z[np.isfinite(z)]
         ds = run_kway_experiment(
             jax.random.key(args.seed + 2),
             model,
@@ -156,6 +174,13 @@ def main() -> None:
                 k: [round(d[q][k - 1], 4) for q in ("mean", "lo", "hi")] for k in STEPS
             },
             "per_instance_random_correct_after_1_and_8": per,
+            "sequential_check": {
+                "mean_square_by_view": [
+                    round(float(np.nanmean(z[:, j] ** 2)), 3) for j in range(z.shape[1])
+                ],
+                "share_abs_above_3": round(float(np.mean(np.abs(finite) > 3)), 4),
+                "kurtosis": round(float(np.mean(finite**4) / np.mean(finite**2) ** 2), 2),
+            },
             "ece_top_after_1_2_4": {
                 m: [round(float(x), 4) for x in cal["ece_top"].sel({"method": m}).values]
                 for m in ("random", "planning", "one_vs_rest")

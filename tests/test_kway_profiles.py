@@ -348,3 +348,49 @@ def test_calibration_needs_the_class_probabilities():
     )
     with pytest.raises(ValueError, match="keep_probabilities=True"):
         kway_calibration(ds)
+
+
+def _draw_from(rng, mu, sd, tau, category):
+    """Responses drawn from the model itself: per instance a posterior draw, an instance effect, noise."""
+    n = rng.integers(0, mu.shape[0], size=len(category))
+    u = rng.normal(0, 1, size=len(category)) * tau[n, category]
+    m = mu[n, category]
+    return m + u[:, None, None, None] + sd[n, category] * rng.normal(size=m.shape)
+
+
+def test_sequential_normal_scores_are_standard_normal_under_the_true_model(rng):
+    """Data drawn from the model: the scores have mean square 1 and Gaussian tails; a model with half the
+    noise sd is caught (mean square far above 1); the first view's score is the closed form."""
+    from scipy import stats as st
+
+    from scrppl.kway.profiles import sequential_normal_scores
+    from scrppl.models.response import ResponseModel
+
+    n_draw, k, a = 3, 2, 8
+    mu = rng.normal(0, 1, size=(n_draw, k, a, 1, 2))
+    sd = rng.uniform(0.3, 0.8, size=mu.shape)
+    tau = rng.uniform(0.2, 1.0, size=(n_draw, k))
+    category = np.arange(3000) % k
+    y = _draw_from(rng, mu, sd, tau, category)
+    observed = rng.random(y.shape) > 0.1
+    model = ResponseModel(jnp.asarray(mu), jnp.asarray(sd), jnp.asarray(tau))
+    z = sequential_normal_scores(model, y, observed, category)
+    assert z.shape == (3000, 1, 2, a) and np.isnan(z).sum() == (~observed).sum()
+    zz = z[np.isfinite(z)]
+    assert abs(np.mean(zz**2) - 1.0) < 0.05 and abs(np.mean(zz)) < 0.03
+    assert np.mean(np.abs(zz) > 3) < 0.006
+    # later views are scored as well as the first (the filter's evidence weights are right)
+    assert abs(np.nanmean(z[..., -1] ** 2) - 1.0) < 0.1
+    narrow = ResponseModel(jnp.asarray(mu), jnp.asarray(sd / 2), jnp.asarray(tau / 2))
+    assert np.nanmean(sequential_normal_scores(narrow, y, observed, category) ** 2) > 1.5
+    # the first observed view of a ring: the plain mixture of the draws' marginals
+    i, e, s = 5, 0, 1
+    first = np.flatnonzero(observed[i, :, e, s])[0]
+    c = category[i]
+    pit = np.mean(
+        st.norm.cdf(
+            (y[i, first, e, s] - mu[:, c, first, e, s])
+            / np.sqrt(sd[:, c, first, e, s] ** 2 + tau[:, c] ** 2)
+        )
+    )
+    np.testing.assert_allclose(z[i, e, s, first], st.norm.ppf(pit), rtol=1e-6)
