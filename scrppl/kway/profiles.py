@@ -70,14 +70,13 @@ better (joint LPD -2,910 against -4,839 nats; better in 87 of the 100 target x c
 accurate after one random view (0.601 against 0.579), but it falls behind as views accumulate: 0.837
 and 0.884 after 4 and 8 views against 0.875 and 0.920, and its top-label calibration error grows with the
 views (0.063, 0.107, 0.105 after 1, 2, 4 views, against 0.093, 0.058, 0.042). The posterior predictive
-check of what the filter uses (:func:`sequential_normal_scores`) says why: held-out views are scored
+check of what the filter uses (:func:`sequential_normal_scores`) points to why: held-out views are scored
 beyond 3 predictive sds 0.66 % of the time (0.27 % if the predictive were right; 0.41 % for the binary
-reading), with kurtosis 3.6 (3.2), and the excess comes from a few held-out instances that answer every
-erratically under many detectors (mean squared scores 1.4-3.2 over their views). Its smaller noise sds make each
-view count for more, so those instances decide. A noise scale per instance, mixed over equally likely
-nodes, does not see them: fitted to the cellphone detector's three instances per category its spread was
-0.07 on the log scale. Heavier tails where the held-out instances put them, chosen by held-out evidence,
-are the next thing to try; until then the pipeline keeps the binary reading.
+reading), with kurtosis 3.6 (3.2), and the excess comes from a few held-out instances that answer
+erratically under many detectors (mean squared scores 1.4-3.2 over their views). Its smaller noise sds
+make each view count for more, so those instances decide. Heavier tails where the held-out instances put
+them, chosen by held-out evidence, are the next thing to try; until then the pipeline keeps the binary
+reading.
 """
 
 from __future__ import annotations
