@@ -706,6 +706,8 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
         "quick",
         "--trials",
         "6",
+        "--large-trials",
+        "4",
         "--n-samples",
         "8",
         "--quiet",
@@ -722,7 +724,22 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     summary = json.loads((tmp_path / "kway-summary.json").read_text())
     assert summary["categories"] == cats and summary["trials"]["n_trials"] == 6
     assert set(summary["trials"]["methods"]) == {"planning", "random", "one_vs_rest"}
-    assert "## Which object is it? K-way recognition" in write_report(tmp_path).read_text()
+    # the calibration quoted is that of the saved class probabilities
+    from scrppl.kway.experiment import kway_calibration
+
+    cal = kway_calibration(xr.open_dataset(tmp_path / "kway-trials.nc"))
+    quoted = summary["trials"]["calibration"]
+    assert quoted["steps"] == [1, 2, 4]
+    for m in ("planning", "random", "one_vs_rest"):
+        np.testing.assert_allclose(
+            quoted["ece_top"][m], cal["ece_top"].sel({"method": m}).values, atol=1e-4
+        )
+    # the large experiment's probabilities give its calibration but are not saved (file size)
+    assert "calibration" in summary["large"]
+    assert "p_class" not in xr.open_dataset(tmp_path / "kway-trials-large.nc")
+    report = write_report(tmp_path).read_text()
+    assert "## Which object is it? K-way recognition" in report
+    assert "Expected calibration error of the top-label probability after 1, 2, 4 views" in report
     assert main(["kway", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1
 
 

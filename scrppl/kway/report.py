@@ -53,6 +53,17 @@ def _experiment(e: dict, label: str) -> str:
             f". The K-way filter (random views) minus one-vs-rest on the same views: views to confidence "
             f"{_ci(r['mean'], r['lo'], r['hi'], 2)}"
         )
+    cal = e.get("calibration")
+    if cal:
+        text += (
+            ". Expected calibration error of the top-label probability after "
+            + ", ".join(str(k) for k in cal["steps"])
+            + " views: "
+            + "; ".join(
+                f"{_NAMES.get(m, m)} " + ", ".join(f"{x:.3f}" for x in vals)
+                for m, vals in cal["ece_top"].items()
+            )
+        )
     return text + ".\n"
 
 

@@ -23,6 +23,7 @@ from scrppl.kway.experiment import (
     DEFAULT_PLANNER,
     compare_kway,
     confusion_matrices,
+    kway_calibration,
     make_kway_trials,
     run_kway_experiment,
     summarise_kway,
@@ -186,12 +187,16 @@ def run_kway_study(
                 config=config,
                 planner=planner,
                 categories=categories,
-                keep_probabilities=k == 0,
+                keep_probabilities=True,
                 progress=progress,
             )
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
     summary = summary_dict(results[0], results[1], fit.info)
+    if (
+        results[1] is not None
+    ):  # the large experiment's probabilities served its calibration; not saved
+        results[1] = results[1].drop_vars("p_class")
     return KwayStudy(fit, results[0], results[1], summary)
 
 
@@ -214,6 +219,18 @@ def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
     out["planning_minus_random"] = compare_kway(ds, "planning", "random")
     if "one_vs_rest" in ds["method"].values:
         out["random_minus_one_vs_rest"] = compare_kway(ds, "random", "one_vs_rest")
+    if "p_class" in ds:
+        cal = kway_calibration(ds)
+        out["calibration"] = {
+            "steps": [int(k) for k in cal["step"].values],
+            **{
+                var: {
+                    m: [round(float(x), 4) for x in cal[var].sel({"method": m}).values]
+                    for m in cal["method"].values.tolist()
+                }
+                for var in ("ece_top", "ece_classwise")
+            },
+        }
     conf = confusion_matrices(ds, CONFUSION_STEPS)
     out["confusion"] = {
         m: {
@@ -229,7 +246,9 @@ def summary_dict(trials: xr.Dataset, large: xr.Dataset | None, info: dict) -> di
     """The numbers the report and the book quote.
 
     Per experiment and method: accuracy, ``p(true)`` and entropy after :data:`REPORT_STEPS` views with
-    95% intervals; paired differences; confusion matrices.
+    95% intervals; paired differences; confusion matrices; and where the experiment kept its class
+    probabilities, their expected calibration errors after 1, 2 and 4 views
+    (:func:`~scrppl.kway.experiment.kway_calibration`).
     """
     out = {
         "detector": info["detector"],
