@@ -300,6 +300,10 @@ def test_plot_calibration_draws_into_given_axes():
     # the diagonal, then one line per filter with its empty bins left out
     assert len(right.lines) == 3
     np.testing.assert_allclose(right.lines[1].get_xdata(), [0.1, 0.9])
+    assert right.get_xlabel() == "predicted p(o = present | F)"
+    # another event (the K-way filter's top label being right) gets its own axis labels
+    plot_calibration(cal, ax=left, xlabel="predicted max p(c | F)", ylabel="fraction right")
+    assert (left.get_xlabel(), left.get_ylabel()) == ("predicted max p(c | F)", "fraction right")
     plt.close(fig)
 
 

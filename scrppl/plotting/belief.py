@@ -200,7 +200,14 @@ def plot_planner_comparison(
     return fig
 
 
-def plot_calibration(calibration: Mapping[str, Mapping], title: str = "", *, ax=None) -> Figure:
+def plot_calibration(
+    calibration: Mapping[str, Mapping],
+    title: str = "",
+    *,
+    ax=None,
+    xlabel: str = "predicted p(o = present | F)",
+    ylabel: str = "observed frequency of present",
+) -> Figure:
     """Reliability diagram of ``p(o = present | F)`` for each method, with its expected calibration error.
 
     Parameters
@@ -212,6 +219,9 @@ def plot_calibration(calibration: Mapping[str, Mapping], title: str = "", *, ax=
         Panel title.
     ax
         Draw into these axes instead of a new figure.
+    xlabel, ylabel
+        Axis labels, for another event than "present" (e.g. the K-way filter's top label being right,
+        ``scrppl.kway.experiment.kway_calibration``).
 
     Returns
     -------
@@ -226,8 +236,8 @@ def plot_calibration(calibration: Mapping[str, Mapping], title: str = "", *, ax=
         ax.plot(
             mean_p[ok], frac[ok], "-o", ms=4, color=f"C{i}", label=f"{name} (ECE {cal['ece']:.3f})"
         )
-    ax.set_xlabel("predicted p(o = present | F)")
-    ax.set_ylabel("observed frequency of present")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
     ax.set_aspect("equal")
