@@ -1,10 +1,12 @@
 """One decision of the confident planner (``PlannerConfig("confident")``) at the experiment's setting.
 
-8 candidate azimuths (one already seen), 16 states (2 classes x 8 poses), depth 2
-(:data:`scrppl.confident.CONFIDENT_DEPTH`): the paper's Gaussian with naive Bayes (one draw) and a
-32-draw model with an instance effect under the instance-aware filter (the study keeps 32 draws). The
-public ``choose_view``, after compilation, pinned to one core; the median of repeats. The paper's sampled
-planner (``M = 256``) is timed beside it for scale.
+8 candidate azimuths (one already seen), 16 states (2 classes x 8 poses), depth 2: the paper's Gaussian
+with naive Bayes (one draw), and a 32-draw model with an instance effect under both filters (the study
+keeps 32 draws). The public ``choose_view``, after compilation, pinned to one core; the median of repeats.
+Beside the planner (:func:`scrppl.confident.confident_scores`, ``M = 32`` first-level responses,
+:data:`scrppl.confident.LEAF_SAMPLES` per second-level candidate) for scale: the exact depth-2 expectimax
+it approximates (``choose_view_confident(method="expectimax")``, ``M = 32`` per level), and the paper's
+sampled entropy planner (``M = 256``).
 
 Writes ``benchmarks/results/confident-planner.json``. Run: ``python benchmarks/bench_confident.py``.
 Other processes on the machine slow every figure; the load average is recorded with them.
@@ -48,7 +50,7 @@ def make_model(n_draws: int, tau: float, seed: int = 0) -> ResponseModel:
     return ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
 
 
-def time_decision(model, kind, config, repeat=15, inner=5):
+def time_decision(model, kind, config, repeat=15, inner=5, method=None):
     key = jax.random.key(0)
     belief = B.update(model, B.init_belief(kind, model), jnp.float32(1.0), 2, 0, 0)
     visited = jnp.zeros((A, 1, 1), bool).at[2, 0, 0].set(True)
@@ -56,6 +58,10 @@ def time_decision(model, kind, config, repeat=15, inner=5):
     current = jnp.array([2, 0, 0])
 
     def decide():
+        if method is not None:
+            return C.choose_view_confident(
+                key, model, belief, current, visited, avail, config, method=method
+            )[0]
         return P.choose_view(key, model, belief, current, visited, avail, config)[0]
 
     t0 = time.perf_counter()
@@ -81,12 +87,14 @@ def main() -> int:
     info = dict(line.split(":", 1) for line in lscpu.splitlines() if ":" in line)
     cases = {
         "gaussian_naive_bayes_N1": (make_model(1, 0.0), "naive_bayes"),
+        "hierarchical_naive_bayes_N32": (make_model(32, 0.4), "naive_bayes"),
         "hierarchical_instance_N32": (make_model(32, 0.4), "instance"),
     }
     configs = {
-        "confident_M32": C.CONFIDENT_PLANNER,
-        "confident_M256_default_n_samples": P.PlannerConfig("confident"),
-        "sampled_entropy_M256_for_scale": P.PlannerConfig("sampled"),
+        "confident_M32": (C.CONFIDENT_PLANNER, None),
+        "confident_M256_default_n_samples": (P.PlannerConfig("confident"), None),
+        "exact_expectimax_M32_for_scale": (C.CONFIDENT_PLANNER, "expectimax"),
+        "sampled_entropy_M256_for_scale": (P.PlannerConfig("sampled"), None),
     }
     results = {
         "machine": {
@@ -105,20 +113,20 @@ def main() -> int:
             "valid_candidates": A - 1,
             "states": 2 * A,
             "depth": C.CONFIDENT_DEPTH,
-            "responses_per_level": "n_samples (sampled, common random numbers)",
+            "first_level_responses": "n_samples (stratified, common random numbers)",
+            "leaf_responses": C.LEAF_SAMPLES,
         },
         "note": (
-            "work grows as (7 M)(7 M) responses per decision at depth 2: PlannerConfig('confident') "
-            "keeps PlannerConfig's default n_samples = 256 per level (64 x the work of "
-            "scrppl.confident.CONFIDENT_PLANNER, M = 32); with 32 draws it is not run here"
+            "the planner's work grows as C M N O A + C^2 M L O A (M first-level responses, L leaf "
+            "responses); the exact expectimax's as (C M)^2 N O A, so with 32 draws it costs 30-40 x more"
         ),
         "decision": {},
     }
     for case, (model, kind) in cases.items():
-        for name, config in configs.items():
-            if case.endswith("N32") and name == "confident_M256_default_n_samples":
-                continue  # 64 x the M = 32 work: minutes per trial; not a setting to run
-            results["decision"][f"{case}/{name}"] = time_decision(model, kind, config)
+        for name, (config, method) in configs.items():
+            results["decision"][f"{case}/{name}"] = time_decision(
+                model, kind, config, method=method
+            )
             print(case, name, results["decision"][f"{case}/{name}"], flush=True)
     results["machine"]["load_average_end"] = list(os.getloadavg())
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")

@@ -42,13 +42,18 @@ Contents
 * :func:`step_cost` -- ``s`` and the updated ``alive`` flags from a class posterior.
 * :func:`expected_remaining_views` -- the bracket ``[lower, upper]`` of every candidate first view.
 * :func:`optimal_remaining_views` -- the bracket of the best adaptive policy from a belief.
-* :func:`choose_view_confident` -- the planner, with :func:`scrppl.planning.choose_view`'s interface; also
-  selectable as ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view` and the trial
-  runner (sampled, depth :data:`CONFIDENT_DEPTH`, ``n_samples`` draws per level, upper-bound scores).
+* :func:`confident_scores` -- the planner's scores: depth 2 with the upper leaf value, the second level
+  moment-matched over the draws (:func:`collapse_draws`) and sampled :data:`LEAF_SAMPLES` times per
+  first-level response; what ``PlannerConfig(planner="confident")`` minimises in
+  :func:`scrppl.planning.choose_view` and the trial runner.
+* :func:`choose_view_confident` -- :func:`scrppl.planning.choose_view`'s interface to either: the planner
+  (default) or the exact expectimax of :func:`expected_remaining_views` (``method="expectimax"``).
 
-Compute grows as ``(C M)^depth`` for ``C`` candidates and ``M`` responses per view: depth 2 with
-``M = 32`` suits the experiment's setting (8 azimuths, 16 states); see
-``benchmarks/results/confident-planner.json``.
+The exact expectimax costs ``(C M)^depth`` for ``C`` candidates and ``M`` responses per view, times the
+``N O A`` mixture components at each; it is the reference the tests hold the planner to, not a planner
+for a trial. The planner's cost is ``C M N O A`` for the first level plus ``C^2 M L O A`` for the second
+(``L`` leaf responses): about 2-5 ms a decision at the experiment's setting (8 azimuths, 16 states,
+32 draws, ``M = 32``, ``L = 8``) on one core; see ``benchmarks/results/confident-planner.json``.
 """
 
 from __future__ import annotations
@@ -63,27 +68,31 @@ from jax.scipy.special import logsumexp
 
 from scrppl import belief as B
 from scrppl import planning as P
-from scrppl.models.response import ResponseModel, check_response_model
+from scrppl.models.response import ResponseModel, check_response_model, normal_log_density
 from scrppl.planning import PlannerConfig
 from scrppl.sim.metrics import CONFIDENCE
 
 __all__ = [
     "CONFIDENT_DEPTH",
     "CONFIDENT_PLANNER",
+    "LEAF_SAMPLES",
     "RESPONSES",
     "view_information",
     "initial_alive",
     "step_cost",
     "expected_remaining_views",
     "optimal_remaining_views",
+    "collapse_draws",
+    "confident_scores",
     "choose_view_confident",
 ]
 
 #: Views looked ahead by ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view`.
 CONFIDENT_DEPTH = 2
-#: The confident planner with ``M = 32`` sampled responses per level (the default ``M = 256`` of
-#: :class:`~scrppl.planning.PlannerConfig` costs ``8^2`` times more at depth 2).
+#: The confident planner with ``M = 32`` first-level responses per candidate (:func:`confident_scores`).
 CONFIDENT_PLANNER = PlannerConfig("confident", n_samples=32)
+#: Second-level responses per first-level response and candidate in :func:`confident_scores`.
+LEAF_SAMPLES = 8
 #: How the expectation over the next response is taken: common random numbers or Gauss-Hermite nodes.
 RESPONSES = ("sampled", "quadrature")
 
@@ -440,19 +449,222 @@ def optimal_remaining_views(
     return jnp.where(any_left, best[0], rest), jnp.where(any_left, best[1], rest)
 
 
+# ------------------------------------------------------------------------------------------------
+# the planner: depth 2, the last level moment-matched and stratified
+
+
+def collapse_draws(mixture: B.Mixture) -> B.Mixture:
+    """Each state's predictive mixture over the posterior draws as one Gaussian of the same mean and variance.
+
+    Component ``(o, theta)`` of the result has weight ``W = sum_n w[n, o, theta]``, mean ``sum_n w m / W``
+    and variance ``sum_n w (v + (m - mean)^2) / W`` (moment matching); shapes ``(1, O, A)``. Exact for a
+    one-draw model; for ``N`` draws it keeps each state's predictive mean and spread and drops only its
+    shape (the draws' means differ by the posterior uncertainty of ``mu``, small beside ``sigma``).
+    """
+    lw = logsumexp(mixture.log_weight, axis=0, keepdims=True)
+    w = jnp.exp(mixture.log_weight - lw)
+    mean = jnp.sum(w * mixture.mean, axis=0, keepdims=True)
+    var = jnp.sum(w * (mixture.var + (mixture.mean - mean) ** 2), axis=0, keepdims=True)
+    return B.Mixture(lw, mean, var)
+
+
+def _stratified(key, shape, m, dtype):
+    """Stratified ``(u, eps)``, each of shape ``shape + (m,)``.
+
+    One uniform per stratum ``[i/m, (i+1)/m)`` picks the component; a standard normal from shuffled strata
+    gives the noise (a Latin hypercube in the two coordinates).
+    """
+    k_u, k_v, k_p = jax.random.split(key, 3)
+    strata = jnp.arange(m, dtype=dtype)
+    u = (strata + jax.random.uniform(k_u, shape + (m,), dtype)) / m
+    perm = jnp.argsort(jax.random.uniform(k_p, shape + (m,)), axis=-1).astype(dtype)
+    v = (perm + jax.random.uniform(k_v, shape + (m,), dtype)) / m
+    eps = jax.scipy.special.ndtri(jnp.clip(v, 1e-7, 1 - 1e-7))
+    return u, eps
+
+
+def _draw(log_weight, mean, var, u, eps):
+    """Responses ``(..., m)`` from mixtures over the last axis (``K`` components), by inverse CDF.
+
+    ``u`` and ``eps`` broadcast against the leading axes, with a trailing axis of ``m`` draws.
+    """
+    cdf = jnp.cumsum(jnp.exp(log_weight), axis=-1)
+    target = u * cdf[..., -1:]
+    comp = jnp.sum(cdf[..., None, :] <= target[..., :, None], axis=-1)
+    comp = jnp.minimum(comp, log_weight.shape[-1] - 1)
+    return (
+        jnp.take_along_axis(mean, comp, axis=-1)
+        + jnp.sqrt(jnp.take_along_axis(var, comp, axis=-1)) * eps
+    )
+
+
+def _class_step(log_joint, alive, threshold):
+    """Step cost and flags from normalised ``log p(o, theta)`` ``(..., O, A)``."""
+    return step_cost(jnp.exp(logsumexp(log_joint, axis=-1)), alive, threshold)
+
+
+def confident_scores(
+    key: jax.Array,
+    model: ResponseModel,
+    belief,
+    views,
+    valid,
+    *,
+    n_samples: int = 32,
+    leaf_samples: int | None = None,
+    threshold: float = CONFIDENCE,
+) -> jax.Array:
+    """The confident planner's score of every candidate: estimated views still to count, shape ``(C,)``.
+
+    Depth-2 expectimax with the upper leaf value of :func:`expected_remaining_views` (the value of a
+    policy: two planned views, then any), computed the way a planner can afford (``O(C^2 M L O A)`` after
+    one pass over the draws) rather than exactly:
+
+    * first level: ``n_samples`` responses ``f_1`` per candidate from the filter's predictive
+      (:func:`scrppl.belief.predictive_mixture`), stratified, the *same* uniforms for every candidate
+      (common random numbers); each gives the exact updated belief and step cost;
+    * second level: for every updated belief and second candidate, the predictive over the draws is
+      moment-matched to one Gaussian per state (:func:`collapse_draws`; the moments are contractions over
+      the draws, not a pass per response) and ``leaf_samples`` stratified responses are drawn from it,
+      different for each first-level response (so their error averages over the ``n_samples`` of them)
+      and shared by every candidate.
+
+    The scores are what ``PlannerConfig(planner="confident")`` minimises in :func:`scrppl.planning.choose_view`
+    (``alive`` from the belief, ``steps_left`` the number of valid candidates). With a one-draw model
+    and many samples they converge to :func:`expected_remaining_views`'s upper bracket at depth 2.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the sampled responses.
+    model, belief
+        The response model and the current belief (either filter).
+    views, valid
+        Candidate views ``(C, 3)`` and which may be looked at ``(C,)``.
+    n_samples
+        First-level responses per candidate.
+    leaf_samples
+        Second-level responses per first-level response and candidate (default :data:`LEAF_SAMPLES`).
+    threshold
+        The confidence threshold.
+
+    Returns
+    -------
+    ``(C,)`` scores, ``+inf`` for invalid candidates.
+    """
+    for name, value in (("n_samples", n_samples), ("leaf_samples", leaf_samples)):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1
+        ):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if not 0.0 < float(threshold) < 1.0:
+        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
+    P.check_planner_inputs(model, belief, views=views)
+    if np.shape(valid) != np.shape(views)[:1]:
+        raise ValueError(
+            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
+        )
+    m2 = LEAF_SAMPLES if leaf_samples is None else int(leaf_samples)
+    return _planner_scores(
+        key, model, belief, jnp.asarray(views), jnp.asarray(valid, bool),
+        n_samples=int(n_samples), leaf_samples=m2, threshold=float(threshold),
+    )  # fmt: skip
+
+
+@partial(jax.jit, static_argnames=("n_samples", "leaf_samples", "threshold"))
+def _planner_scores(key, model, belief, views, valid, n_samples, leaf_samples, threshold):
+    """:func:`confident_scores` without the input checks (compiled)."""
+    return _fast_scores(key, model, belief, views, valid, n_samples, leaf_samples, threshold)
+
+
+def _fast_scores(key, model, belief, views, valid, m1, m2, threshold):
+    """The depth-2 scores of :func:`confident_scores` (traceable)."""
+    dtype = model.mu.dtype
+    mu, sig2, tau2 = jax.vmap(lambda v: B.view_parameters(model, v[0], v[1], v[2]))(views)
+    n_c, n_n, n_o, n_a = mu.shape
+    k1, k2 = jax.random.split(key)
+    u1, e1 = _stratified(k1, (), m1, dtype)  # (M1,), shared by every first candidate
+    u2, e2 = _stratified(k2, (m1,), m2, dtype)  # (M1, M2), one set per first-level response
+    alive0 = initial_alive(belief, threshold)
+    steps_left = jnp.sum(valid)
+    # first level: the predictive of every candidate, (C, N, O, A)
+    if isinstance(belief, B.InstanceBelief):
+        lw = belief.log_prior + belief.log_evidence
+        lw1 = jnp.broadcast_to(lw - logsumexp(lw), mu.shape)
+        m_pred, v_pred = mu + belief.u_mean, sig2 + belief.u_var
+    else:
+        lw1 = jnp.broadcast_to(belief.log_belief - math.log(n_n), mu.shape)
+        m_pred, v_pred = mu, sig2 + tau2
+    flat = (n_c, -1)
+    f1 = _draw(lw1.reshape(flat), m_pred.reshape(flat), v_pred.reshape(flat), u1, e1)  # (C, M1)
+    f1b = f1[:, :, None, None, None]
+    # the updated beliefs, (C, M1, N, O, A), and the class step after f1
+    if isinstance(belief, B.InstanceBelief):
+        pv = v_pred[:, None]
+        resid = f1b - m_pred[:, None]
+        lj = belief.log_prior + belief.log_evidence + normal_log_density(resid, 0.0, pv)
+        lw_child = lj - logsumexp(lj, axis=(-3, -2, -1), keepdims=True)
+        u_mean = belief.u_mean + belief.u_var / pv * resid
+        u_var = jnp.broadcast_to(belief.u_var * sig2[:, None] / pv, lj.shape)
+        log_joint = logsumexp(lw_child, axis=-3)
+    else:
+        lp = lw1[:, None] + normal_log_density(f1b, m_pred[:, None], v_pred[:, None])
+        log_joint = logsumexp(lp, axis=-3)
+        log_joint = log_joint - logsumexp(log_joint, axis=(-2, -1), keepdims=True)
+    s1, alive1 = _class_step(log_joint, alive0, threshold)  # (C, M1), (C, M1, O)
+    # second level: per (first candidate, f1, second candidate) one Gaussian per state
+    if isinstance(belief, B.InstanceBelief):
+        x = n_o * n_a
+        w = jnp.exp(lw_child).reshape(n_c, m1, n_n, x)
+        weight = jnp.sum(w, axis=2)  # (C, M1, X)
+        mu_x, s_x = mu.reshape(n_c, n_n, x), sig2.reshape(n_c, n_n, x)
+        um, uv = u_mean.reshape(n_c, m1, n_n, x), u_var.reshape(n_c, m1, n_n, x)
+        # moments of mu_d + m + noise under the weights, by contraction over the draws
+        first = jnp.einsum("cjnx,dnx->cjdx", w, mu_x) + jnp.sum(w * um, axis=2)[:, :, None]
+        second = (
+            jnp.einsum("cjnx,dnx->cjdx", w, s_x + mu_x**2)
+            + 2.0 * jnp.einsum("cjnx,dnx->cjdx", w * um, mu_x)
+            + jnp.sum(w * (uv + um**2), axis=2)[:, :, None]
+        )  # fmt: skip
+        safe = jnp.maximum(weight, jnp.finfo(dtype).tiny)[:, :, None]
+        mean2 = first / safe
+        var2 = jnp.maximum(second / safe - mean2**2, jnp.finfo(dtype).eps * (1.0 + mean2**2))
+        shape = (n_c, m1, n_c, n_o, n_a)
+        mean2, var2 = mean2.reshape(shape), var2.reshape(shape)
+        lw2 = jnp.broadcast_to(jnp.log(weight).reshape(n_c, m1, 1, n_o, n_a), shape)
+    else:  # the draws are weighted alike in every state: the moments do not depend on the belief
+        mean_d = jnp.mean(mu, axis=1)  # (C2, O, A)
+        var_d = jnp.mean(sig2 + tau2 + (mu - mean_d[:, None]) ** 2, axis=1)
+        shape = (n_c, m1, n_c, n_o, n_a)
+        mean2, var2 = jnp.broadcast_to(mean_d, shape), jnp.broadcast_to(var_d, shape)
+        lw2 = jnp.broadcast_to(log_joint[:, :, None], shape)
+    lead = shape[:3]
+    f2 = _draw(
+        lw2.reshape(lead + (-1,)), mean2.reshape(lead + (-1,)), var2.reshape(lead + (-1,)),
+        u2[None, :, None], e2[None, :, None],
+    )  # (C, M1, C2, M2)  # fmt: skip
+    lp2 = lw2[..., None, :, :] + normal_log_density(
+        f2[..., None, None], mean2[..., None, :, :], var2[..., None, :, :]
+    )  # (C, M1, C2, M2, O, A)
+    log_joint2 = lp2 - logsumexp(lp2, axis=(-2, -1), keepdims=True)
+    s2, _ = _class_step(log_joint2, alive1[:, :, None, None], threshold)  # (C, M1, C2, M2)
+    # value after the second view: its step cost, then (r - 2) more at most that (the upper leaf)
+    value2 = (steps_left - 1) * jnp.mean(s2, axis=-1)  # (C, M1, C2)
+    valid2 = valid[None, :] & ~jnp.eye(n_c, dtype=bool)  # (C1, C2)
+    best = jnp.min(jnp.where(valid2[:, None], value2, jnp.inf), axis=-1)  # (C, M1)
+    go_on = jnp.any(valid2, axis=-1)[:, None] & (steps_left > 1)
+    rest = jnp.where(go_on, best, (steps_left - 1) * s1)
+    return jnp.where(valid, jnp.mean(s1 + rest, axis=-1), jnp.inf)
+
+
 def _confident_scores(key, model, belief, views, valid, config: PlannerConfig) -> jax.Array:
     """The scores of ``PlannerConfig(planner="confident")`` in :func:`scrppl.planning.choose_view`.
 
-    Upper-bound expected remaining views of each candidate (traceable, no input checks): sampled
-    responses (``config.n_samples`` per level), depth :data:`CONFIDENT_DEPTH`, ``alive`` from the belief
-    and ``steps_left`` the number of valid candidates.
+    :func:`confident_scores` (traceable, no input checks) with ``config.n_samples`` first-level responses.
     """
-    alive, steps_left = _defaults(belief, valid, None, None, CONFIDENCE)
-    draws = _level_draws(key, "sampled", CONFIDENT_DEPTH, config.n_samples, 1, model.mu.dtype)
-    q = _q_values(
-        model, belief, alive, valid, views, steps_left, CONFIDENT_DEPTH, draws, CONFIDENCE, 0
+    return _fast_scores(
+        key, model, belief, views, valid, config.n_samples, LEAF_SAMPLES, CONFIDENCE
     )
-    return jnp.where(valid, q[:, 1], jnp.inf)
 
 
 def choose_view_confident(
@@ -464,19 +676,24 @@ def choose_view_confident(
     available,
     config: PlannerConfig = CONFIDENT_PLANNER,
     *,
-    depth: int = CONFIDENT_DEPTH,
-    response: str = "sampled",
+    method: str = "planner",
+    depth: int | None = None,
+    response: str | None = None,
     alive=None,
     steps_left=None,
     threshold: float = CONFIDENCE,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Choose the next view to minimise the expected views to confidence (:func:`scrppl.planning.choose_view`'s interface).
 
-    ``V* = argmin_c upper(Q(c)) + motion_cost * angular_distance(phi_c, phi)`` over the valid
-    candidates, with :func:`expected_remaining_views` (upper bound: the value of a policy) and
-    :func:`scrppl.planning.select_view`. With the defaults (and ``alive``/``steps_left`` left ``None``)
-    it chooses what :func:`scrppl.planning.choose_view` chooses with the same key and ``config`` (whose
-    ``planner`` is ``"confident"``).
+    ``V* = argmin_c score(c) + motion_cost * angular_distance(phi_c, phi)`` over the valid candidates,
+    with :func:`scrppl.planning.select_view`, where the score is
+
+    * ``method="planner"`` (default): :func:`confident_scores` with ``config.n_samples`` first-level
+      responses: what :func:`scrppl.planning.choose_view` chooses with the same key and a ``config``
+      whose ``planner`` is ``"confident"``;
+    * ``method="expectimax"``: the upper bracket of :func:`expected_remaining_views` (``depth``,
+      default :data:`CONFIDENT_DEPTH`; ``response``, default ``"sampled"``; ``alive``, ``steps_left``):
+      the exact value of the discretised expectimax, at its cost.
 
     Parameters
     ----------
@@ -489,11 +706,16 @@ def choose_view_confident(
     visited, available
         Boolean ``(A, E, S)`` masks over robot views.
     config
-        :class:`~scrppl.planning.PlannerConfig`: the candidate ``mode``, ``n_samples`` (responses per
-        level, ``"sampled"``), ``order`` (nodes per component, ``"quadrature"``) and the motion cost (in
-        views per azimuth bin travelled); ``planner`` and ``objective`` are not used.
-    depth, response, alive, steps_left, threshold
-        As in :func:`expected_remaining_views`.
+        :class:`~scrppl.planning.PlannerConfig`: the candidate ``mode``, ``n_samples`` (first-level
+        responses; responses per level for ``"expectimax"``), ``order`` (nodes per component,
+        ``"quadrature"``) and the motion cost (in views per azimuth bin travelled); ``planner`` and
+        ``objective`` are not used.
+    method
+        ``"planner"`` or ``"expectimax"``.
+    depth, response, alive, steps_left
+        As in :func:`expected_remaining_views`; only with ``method="expectimax"``.
+    threshold
+        The confidence threshold.
 
     Returns
     -------
@@ -502,15 +724,31 @@ def choose_view_confident(
     found
         ``False`` when no candidate was left.
     scores
-        ``(C,)`` upper-bound expected remaining views plus cost, ``+inf`` for invalid candidates.
+        ``(C,)`` scores plus cost, ``+inf`` for invalid candidates.
     """
     config = P.check_planner_config(config)
     P.check_planner_inputs(model, belief, current=current, visited=visited, available=available)
     views, valid = P.candidate_views(current, visited, available, config.mode)
-    q = expected_remaining_views(
-        model, belief, views, valid, key=key, alive=alive, steps_left=steps_left, depth=depth,
-        response=response, n_samples=config.n_samples, order=config.order, threshold=threshold,
-    )  # fmt: skip
+    if method == "planner":
+        given = [n for n, v in (("depth", depth), ("response", response), ("alive", alive),
+                                ("steps_left", steps_left)) if v is not None]  # fmt: skip
+        if given:
+            raise ValueError(f"{', '.join(given)}: only with method='expectimax'")
+        if key is None:
+            raise ValueError("the planner samples responses: it needs a PRNG key")
+        score = confident_scores(
+            key, model, belief, views, valid, n_samples=config.n_samples, threshold=threshold
+        )
+    elif method == "expectimax":
+        q = expected_remaining_views(
+            model, belief, views, valid, key=key, alive=alive, steps_left=steps_left,
+            depth=CONFIDENT_DEPTH if depth is None else depth,
+            response="sampled" if response is None else response,
+            n_samples=config.n_samples, order=config.order, threshold=threshold,
+        )  # fmt: skip
+        score = q[:, 1]
+    else:
+        raise ValueError(f"unknown method {method!r}; expected 'planner' or 'expectimax'")
     cost = P.travel_cost(views, current, config.motion_cost, model.mu.shape[2])
-    idx, found, scores = P.select_view(q[:, 1], cost, valid)
+    idx, found, scores = P.select_view(score, cost, valid)
     return views[idx], found, scores

@@ -12,6 +12,7 @@
 import functools
 import itertools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -186,7 +187,8 @@ def test_full_depth_expectimax_is_the_best_of_all_adaptive_policies(kind):
     visited[start] = True
     view, found, _ = C.choose_view_confident(
         None, model, b, jnp.asarray([start, 0, 0]), visited, np.ones((A, 1, 1), bool),
-        P.PlannerConfig("confident", order=ORDER), depth=3, response="quadrature",
+        P.PlannerConfig("confident", order=ORDER), method="expectimax", depth=3,
+        response="quadrature",
     )  # fmt: skip
     assert bool(found) and int(view[0]) == brute_first
 
@@ -227,6 +229,123 @@ def test_sampled_one_step_value_equals_integration(key):
         want = integrate.trapezoid(density * s, grid)
         # sampling error about 0.004 at M = 4096; upper = lower x the 3 views left
         np.testing.assert_allclose(q[v], [want, 3 * want], atol=0.015, rtol=0.005)
+
+
+def depth_two_upper_by_integration(model, kind, start, f0, grid):
+    """The depth-2 value with the upper leaf, by integration on a grid (one draw: no approximation).
+
+    Q(v2) = E[s2 + min_{v3} (r - 1) E[s3 | f2]] with r = 3 views left after the start view.
+    """
+    h = grid[1] - grid[0]
+    _, alive1 = cost(model, kind, [start], np.asarray([f0]), np.ones(2, bool))
+    log_f0 = logsumexp(log_lik(model, kind, [start], [f0]))
+    rest = [v for v in range(A) if v != start]
+    q = {}
+    for v2 in rest:
+        h2 = np.column_stack([np.full(grid.size, f0), grid])  # (G, 2)
+        lj2 = log_lik(model, kind, [start, v2], h2)  # (O, A, G)
+        dens2 = np.exp(logsumexp(lj2, axis=(0, 1)) - log_f0)
+        s2, alive2 = cost(model, kind, [start, v2], h2, alive1[:, None])
+        inner = []
+        for v3 in (v for v in rest if v != v2):
+            h3 = extend(h2, np.broadcast_to(grid, (grid.size, grid.size)))  # (G, G, 3)
+            lj3 = log_lik(model, kind, [start, v2, v3], h3)  # (O, A, G, G)
+            dens3 = np.exp(logsumexp(lj3, axis=(0, 1)) - logsumexp(lj2, axis=(0, 1))[:, None])
+            s3, _ = cost(model, kind, [start, v2, v3], h3, alive2[..., None])
+            inner.append(2.0 * np.sum(dens3 * s3, axis=-1) * h)
+        q[v2] = float(np.sum(dens2 * (s2 + np.min(inner, axis=0))) * h)
+    return q
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_planner_scores_converge_to_the_depth_two_value(kind, key):
+    """With one draw the planner's only approximation is sampling: many samples give the integral."""
+    model, start, f0, b, _ = tiny(kind)
+    views, valid = views_valid(start)
+    want = depth_two_upper_by_integration(model, kind, start, f0, np.linspace(-4.0, 6.0, 401))
+    got = np.asarray(
+        C.confident_scores(key, model, b, views, valid, n_samples=4096, leaf_samples=64)
+    )
+    assert np.isinf(got[start])
+    for v, value in want.items():
+        np.testing.assert_allclose(got[v], value, atol=0.03)
+    # and the exact expectimax (quadrature, depth 2) brackets the same value from its discretisation
+    assert (
+        max(want.values()) - min(want.values()) > 0.05
+    )  # the candidates differ: a real comparison
+
+
+def test_collapse_draws_keeps_each_states_mean_and_variance():
+    rng = np.random.default_rng(5)
+    shape = (6, 2, 3)
+    lw = rng.normal(size=shape)
+    lw = lw - logsumexp(lw)
+    mean, var = rng.normal(size=shape), rng.uniform(0.2, 1.5, size=shape)
+    out = C.collapse_draws(B.Mixture(*(jnp.asarray(x) for x in (lw, mean, var))))
+    w = np.exp(lw)
+    weight = w.sum(0)
+    m = (w * mean).sum(0) / weight
+    second = (w * (var + mean**2)).sum(0) / weight  # E[f^2] of the state's mixture
+    np.testing.assert_allclose(np.exp(np.asarray(out.log_weight))[0], weight, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(out.mean)[0], m, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(out.var)[0], second - m**2, rtol=1e-5)
+
+
+def test_planner_moments_equal_the_collapsed_predictive(key):
+    """The planner, written here from the public pieces on the same stratified responses.
+
+    predictive_mixture and update at the first level, collapse_draws of the updated belief's predictive
+    at the second: the planner's contractions over the draws must give the same scores.
+    """
+    rng = np.random.default_rng(2)
+    n_n = 5
+    mu = rng.normal(0.0, 1.0, size=(n_n, 2, A, 1, 1))
+    sigma = rng.uniform(0.4, 0.9, size=mu.shape)
+    tau = rng.uniform(0.2, 0.6, size=(n_n, 2))
+    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    b = B.update(model, B.init_belief("instance", model), jnp.float32(0.4), 0, 0, 0)
+    views = jnp.asarray([[p, 0, 0] for p in range(A)])
+    valid = jnp.asarray(np.arange(A) != 0)
+    k1, k2 = jax.random.split(key)
+    m1, m2 = 3, 4
+    u1, e1 = C._stratified(k1, (), m1, jnp.float32)
+    u2, e2 = C._stratified(k2, (m1,), m2, jnp.float32)
+    got = np.asarray(C.confident_scores(key, model, b, views, valid, n_samples=m1, leaf_samples=m2))
+    alive0 = np.asarray(C.initial_alive(b))
+    r = int(valid.sum())
+    for c1 in range(1, A):
+        mix = B.predictive_mixture(model, b, c1, 0, 0)
+        f1 = C._draw(*(x.reshape(1, -1) for x in mix), u1, e1)[0]
+        total = 0.0
+        for j in range(m1):
+            b1 = B.update(model, b, f1[j], c1, 0, 0)
+            s1, alive1 = C.step_cost(B.class_marginal(b1), alive0)
+            best = np.inf
+            for c2 in (c for c in range(1, A) if c != c1):
+                mix2 = C.collapse_draws(B.predictive_mixture(model, b1, c2, 0, 0))
+                f2 = C._draw(*(x.reshape(1, -1) for x in mix2), u2[j], e2[j])[0]
+                p2 = C._class_probs(B.mixture_posterior(mix2, f2))  # (m2, O)
+                s2, _ = C.step_cost(p2, alive1)
+                best = min(best, (r - 1) * float(np.mean(s2)))
+            total += float(s1) + best
+        np.testing.assert_allclose(got[c1], total / m1, rtol=2e-5)
+
+
+def test_choose_view_confident_refuses_expectimax_options_for_the_planner(key):
+    model = tiny_model(0.45)
+    b = B.init_belief("instance", model)
+    visited = np.zeros((A, 1, 1), bool)
+    visited[1] = True
+    args = (model, b, jnp.asarray([1, 0, 0]), visited, np.ones((A, 1, 1), bool))
+    with pytest.raises(ValueError, match="depth: only with method='expectimax'"):
+        C.choose_view_confident(key, *args, depth=3)
+    with pytest.raises(ValueError, match="unknown method"):
+        C.choose_view_confident(key, *args, method="greedy")
+    with pytest.raises(ValueError, match="needs a PRNG key"):
+        C.choose_view_confident(None, *args)
+    with pytest.raises(ValueError, match="leaf_samples must be a positive integer"):
+        C.confident_scores(key, model, b, *P.candidate_views(args[2], visited, args[4], "azimuth"),
+                           leaf_samples=0)  # fmt: skip
 
 
 def test_confident_planner_in_choose_view_is_the_standalone_planner(key):
