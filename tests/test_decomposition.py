@@ -20,6 +20,7 @@ filters), checked against ``trials.nc``.
 import json
 import shutil
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -30,9 +31,9 @@ from scrppl.models.io import save_gaussian
 from scrppl.models.response import ResponseModel
 from scrppl.planning import PlannerConfig as PC
 from scrppl.responses import empty_response_table, load_response_table, save_response_table
+from scrppl.sim import Trials, robot_frame, run_experiment
 from scrppl.sim import decomposition as D
 from scrppl.sim import metrics as M
-from scrppl.sim import robot_frame, run_experiment
 from scrppl.sim.study import load_methods
 from scrppl.views import ViewGrid
 
@@ -376,3 +377,85 @@ def test_oracle_models_are_fitted_on_the_test_instances_and_run_as_a_row(folder,
     meth = methods["gaussian+naive_bayes"]
     bound = D.clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
     assert np.all(bound <= v.sel(row="oracle").values[0])
+
+
+# ------------------------------------------------------------------------------------------------
+# the model world
+
+
+def test_model_world_trials_are_the_models_generative_process():
+    """Per class and relative view the drawn responses have the model's mean and variance
+    (mixed over draws), views of one trial covary by tau^2, and the trials keep everything else."""
+    rng = np.random.default_rng(4)
+    n_draws, n = 3, 40_000
+    mu = rng.normal(0.0, 1.0, size=(n_draws, 2, A, 1, 1))
+    sigma = rng.uniform(0.3, 0.8, size=mu.shape)
+    tau = rng.uniform(0.2, 0.6, size=(n_draws, 2))
+    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    label = rng.integers(0, 2, n)
+    available = np.ones((n, A, 1, 1), bool)
+    available[::7, 3] = False  # a missing view stays missing
+    trials = Trials(
+        jnp.zeros((n, A, 1, 1), jnp.float32), jnp.asarray(available), jnp.asarray(label),
+        jnp.asarray(rng.integers(0, A, n)), jnp.zeros((n, 3), jnp.int32),
+        jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
+    )  # fmt: skip
+    world = D.model_world_trials(jax.random.key(1), model, trials)
+    for field in ("available", "label", "pose", "start", "category", "instance"):
+        np.testing.assert_array_equal(getattr(world, field), getattr(trials, field))
+    f = np.asarray(world.responses, np.float64)[..., 0, 0]
+    assert np.all(f[::7, 3] == 0.0)
+    for o in (0, 1):
+        rows = (label == o) & available[:, 3, 0, 0]
+        m, s, t = mu[:, o, :, 0, 0], sigma[:, o, :, 0, 0], tau[:, o]
+        mean = m.mean(0)  # uniform over draws
+        var = (s**2 + t[:, None] ** 2 + m**2).mean(0) - mean**2
+        se = np.sqrt(var / rows.sum())
+        np.testing.assert_array_less(np.abs(f[rows].mean(0) - mean), 5 * se)
+        np.testing.assert_allclose(f[rows].var(0), var, rtol=0.05)
+        # two views of one trial share the instance effect (and the draw): cov = E[tau^2] + cov of mu
+        cov = ((t**2) + m[:, 0] * m[:, 1]).mean() - mean[0] * mean[1]
+        np.testing.assert_allclose(np.cov(f[rows, 0], f[rows, 1])[0, 1], cov, atol=0.03)
+
+
+def test_model_world_ladder_runs_and_is_written_beside_the_real_one(folder):
+    table = load_response_table(folder / "responses.nc")
+    ds, entry = D.decompose_target(
+        SEED, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+        kinds=["gaussian"], confident=CONFIDENT, rows=FAST_ROWS, n_boot=200, model_world=True,
+        **OPTIONS,
+    )  # fmt: skip
+    check_bound_below_every_row(ds, entry, FAST_ROWS)
+    # same key, same model world: the same numbers
+    again, _ = D.decompose_target(
+        SEED, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+        kinds=["gaussian"], confident=CONFIDENT, rows=FAST_ROWS, n_boot=200, model_world=True,
+        **OPTIONS,
+    )  # fmt: skip
+    np.testing.assert_array_equal(
+        again["views_to_confidence"].values, ds["views_to_confidence"].values
+    )
+    out = folder / "world"
+    out.mkdir()
+    result = {"settings": {"model_world": True, "trials": TRIALS, "n_samples": 8,
+                           "lookahead_outer": 4, "lookahead_samples": 4,
+                           "confident": CONFIDENT._asdict(), "max_draws": None,
+                           "confidence_threshold": M.CONFIDENCE, "n_boot": 200},
+              "detector": "dpm", "seed": SEED, "targets": {"car": entry}}  # fmt: skip
+    written = D.save_decomposition(result, out)
+    assert [p.name for p in written] == [
+        "decomposition-model-world.json",
+        "decomposition-model-world.md",
+    ]
+    assert "in the model's own world" in written[1].read_text()
+
+
+def test_model_world_refuses_a_model_of_other_views():
+    model = tiny_model()
+    trials = Trials(
+        jnp.zeros((2, A + 1, 1, 1)), jnp.ones((2, A + 1, 1, 1), bool), jnp.zeros(2, jnp.int32),
+        jnp.zeros(2, jnp.int32), jnp.zeros((2, 3), jnp.int32), jnp.zeros(2, jnp.int32),
+        jnp.zeros(2, jnp.int32),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="differ from the trials'"):
+        D.model_world_trials(jax.random.key(0), model, trials)

@@ -18,6 +18,10 @@ share of the clairvoyant room (random minus clairvoyant) it captures; and the in
 class of a first look at each relative azimuth. With the experiment's seed and ``--trials`` the
 ``random`` and ``greedy_joint`` rows are the experiment's ``random`` and ``sampled`` results. Not a
 stage of ``scrppl reproduce``.
+
+With ``--model-world`` the same ladder runs on responses drawn from each method's own model
+(``decomposition-model-world.json`` and ``.md``): how much planning could save if the model were right,
+and so how much of the clairvoyant room is hindsight rather than a better policy's to take.
 """
 
 from __future__ import annotations
@@ -109,6 +113,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "recover",
     )
     p.add_argument(
+        "--model-world",
+        action="store_true",
+        help="replace each method's held-out responses by draws from its own model (same classes, "
+        "poses and start views) and write decomposition-model-world.*: what planning would save if "
+        "the model were right; not with --oracle",
+    )
+    p.add_argument(
         "--n-boot", type=int, default=2000, help="bootstrap resamples of the intervals (2000)"
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -145,6 +156,10 @@ def _run(args: argparse.Namespace) -> int:
                 f"--confident-samples must be at least 1, got {args.confident_samples}"
             )
         confident = confident._replace(n_samples=int(args.confident_samples))
+    if args.oracle and args.model_world:
+        raise ValueError(
+            "--model-world and --oracle do not go together: the model world's models are right"
+        )
     if args.oracle:
         from scrppl.cli.fit import N_CHAINS, _configure_host_devices
 
@@ -165,6 +180,7 @@ def _run(args: argparse.Namespace) -> int:
         confident=confident,
         rows=_names(args.rows) or ROWS,
         oracle_sampler=DEFAULT_SAMPLER if args.oracle else None,
+        model_world=args.model_world,
         n_boot=args.n_boot,
         progress=not args.quiet,
         log=log,

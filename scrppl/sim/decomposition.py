@@ -65,7 +65,7 @@ from tqdm.auto import tqdm
 from scrppl.belief import init_belief, joint_log_belief
 from scrppl.confident import CONFIDENT_PLANNER, view_information
 from scrppl.extensions.lookahead import choose_view_two_step
-from scrppl.models.response import ResponseModel
+from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.planning import PlannerConfig, check_planner_config
 from scrppl.sim import metrics as M
 from scrppl.sim.bounds import clairvoyant_bound
@@ -79,10 +79,12 @@ __all__ = [
     "ORACLE_ROWS",
     "PLANNER_ROWS",
     "DEFAULT_LOOKAHEAD_SAMPLES",
+    "MODEL_WORLD_STREAM",
     "decomposition_planners",
     "run_two_step_trials",
     "run_decomposition",
     "fit_oracle",
+    "model_world_trials",
     "summarise_decomposition",
     "view_informativeness",
     "study_keys",
@@ -104,6 +106,9 @@ PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
 #: ``M2`` draws (the confident planner's ``M = 32`` per level).
 DEFAULT_LOOKAHEAD_SAMPLES = 32
+
+#: The stream of the model world's responses: ``fold_in(trial key, MODEL_WORLD_STREAM)``.
+MODEL_WORLD_STREAM = 0x30D1D
 
 #: The stream of the oracle fits' keys: ``fold_in(fold_in(key(seed), ORACLE_STREAM), target number)``.
 ORACLE_STREAM = 0x0AC1E
@@ -595,6 +600,7 @@ def decompose_target(
     confident: PlannerConfig = CONFIDENT_PLANNER,
     rows: Sequence[str] = ROWS,
     oracle_models_dir: str | Path | None = None,
+    model_world: bool = False,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -624,6 +630,10 @@ def decompose_target(
     oracle_models_dir
         A ``models/`` folder of oracle fits (:func:`fit_oracle`) for the ``oracle`` row; ``None``: no
         such row.
+    model_world
+        Replace each method's responses by draws from its own model (:func:`model_world_trials`, key
+        ``fold_in(fold_in(trial key, MODEL_WORLD_STREAM), method number)``): the ladder in the world
+        the planners believe in. Not with oracle rows.
     n_boot
         Bootstrap resamples of the intervals.
     progress, log
@@ -675,7 +685,16 @@ def decompose_target(
                 f"oracle models under {oracle_models_dir} give the kinds {list(oracle_used)}, the "
                 f"run's {list(used)} ({'; '.join(skipped)}); fit them with fit_oracle"
             )
-    log(f"[decompose] {target}: {trials} trials, methods {', '.join(methods)}")
+    if model_world:
+        if oracle is not None:
+            raise ValueError("the model world has no oracle: its models are right by construction")
+        k_world = jax.random.fold_in(k_trials, MODEL_WORLD_STREAM)
+        methods = {
+            name: m._replace(trials=model_world_trials(jax.random.fold_in(k_world, i), m.model, m.trials))
+            for i, (name, m) in enumerate(methods.items())
+        }  # fmt: skip
+    world = " (responses drawn from each method's own model)" if model_world else ""
+    log(f"[decompose] {target}: {trials} trials{world}, methods {', '.join(methods)}")
     ds = run_decomposition(
         k_run, methods, n_samples=n_samples, lookahead_samples=lookahead_samples,
         lookahead_outer=lookahead_outer, confident=confident, rows=rows, oracle_methods=oracle,
@@ -692,6 +711,42 @@ def decompose_target(
         },
     }
     return ds, entry
+
+
+def model_world_trials(key: jax.Array, model: ResponseModel, trials: Trials) -> Trials:
+    """The same trials with responses drawn from the model itself: the world the planner believes in.
+
+    Each trial keeps its class, pose, start view and missing views; its responses become one draw of
+    the model's generative process for its class ``o``: a posterior draw ``n`` (uniform), an instance
+    effect ``u ~ Normal(0, tau[n, o]^2)`` shared by the trial's views, and
+    ``f[a, e, s] = mu[n, o, a, e, s] + u + sigma[n, o, a, e, s] eps`` with independent standard normal
+    ``eps`` (missing views hold 0, as in :class:`~scrppl.sim.Trials`). Under these trials the
+    instance-aware filter is the exact posterior; what planning saves there is what it could save if the
+    model were right, so the clairvoyant room that remains is what hindsight buys, not a better policy.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the draws.
+    model
+        The response model (its classes are the trials' labels).
+    trials
+        The trials, responses through this model's transform (:class:`~scrppl.sim.experiment.Method`).
+    """
+    check_response_model(model)
+    n_draws, n_o = model.mu.shape[:2]
+    if model.mu.shape[2:] != tuple(trials.responses.shape[1:]):
+        raise ValueError(
+            f"the model's views (A, E, S) = {tuple(model.mu.shape[2:])} differ from the trials' "
+            f"{tuple(trials.responses.shape[1:])}"
+        )
+    label = jnp.asarray(trials.label, jnp.int32)
+    k_n, k_u, k_e = jax.random.split(key, 3)
+    n = jax.random.randint(k_n, label.shape, 0, n_draws)
+    mu, sigma = model.mu[n, label], model.sigma[n, label]  # (T, A, E, S)
+    u = model.tau[n, label] * jax.random.normal(k_u, label.shape, mu.dtype)
+    f = mu + u[:, None, None, None] + sigma * jax.random.normal(k_e, mu.shape, mu.dtype)
+    return trials._replace(responses=jnp.where(trials.available, f, 0.0).astype(mu.dtype))
 
 
 def _simulate_summary(results: Path) -> dict[str, Any]:
@@ -726,6 +781,7 @@ def decompose_results(
     confident: PlannerConfig = CONFIDENT_PLANNER,
     rows: Sequence[str] = ROWS,
     oracle_sampler=None,
+    model_world: bool = False,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -759,6 +815,9 @@ def decompose_results(
         A :class:`~scrppl.models.mcmc.SamplerConfig`: fit the oracle models (:func:`fit_oracle`) of
         every target into ``<results>/oracle/models/`` with it (fits newer than ``responses.nc`` that
         passed their diagnostics are reused) and run the ``oracle`` row; ``None``: no oracle row.
+    model_world
+        Run the ladder on responses drawn from each method's own model (:func:`model_world_trials`);
+        written by :func:`save_decomposition` as ``decomposition-model-world.*``.
 
     Returns
     -------
@@ -825,6 +884,7 @@ def decompose_results(
             "n_boot": int(n_boot),
             "confidence_threshold": M.CONFIDENCE,
             "rows": list(rows),
+            "model_world": bool(model_world),
         },
         "targets": {},
     }
@@ -849,6 +909,7 @@ def decompose_results(
             lookahead_samples=lookahead_samples, lookahead_outer=lookahead_outer,
             confident=confident, rows=rows, n_boot=n_boot, progress=progress, log=log,
             oracle_models_dir=oracle_dir if oracle_report is not None else None,
+            model_world=model_world,
         )  # fmt: skip
         if oracle_report is not None:
             if not oracle_report.get("ok", False):
@@ -896,6 +957,14 @@ def format_decomposition(result: Mapping[str, Any]) -> str:
         f"room (random minus clairvoyant) the row captures.",
         "",
     ]
+    if s.get("model_world"):
+        lines[0] += ", in the model's own world"
+        lines += [
+            "**Model world:** every method's held-out responses are replaced by draws from its own "
+            "model (scrppl.sim.decomposition.model_world_trials): what planning would save if the model "
+            "were right. The room left there is what hindsight buys, not what a better policy could.",
+            "",
+        ]
     for target, entry in result["targets"].items():
         lines += [f"## {target}", ""]
         for method, m in entry["methods"].items():
@@ -940,16 +1009,23 @@ def format_decomposition(result: Mapping[str, Any]) -> str:
 
 
 def save_decomposition(result: Mapping[str, Any], out: str | Path) -> list[Path]:
-    """Write ``decomposition.json`` and ``decomposition.md`` under ``out`` (each atomically)."""
+    """Write ``decomposition.json`` and ``decomposition.md`` under ``out`` (each atomically).
+
+    A model-world run (``settings.model_world``) is written as ``decomposition-model-world.*`` beside
+    the real one, not over it.
+    """
     import json
 
     from scrppl._io import atomic_path
 
     out = Path(out)
+    stem = "decomposition"
+    if result.get("settings", {}).get("model_world"):
+        stem += "-model-world"
     written = []
     for name, text in (
-        ("decomposition.json", json.dumps(result, indent=2)),
-        ("decomposition.md", format_decomposition(result)),
+        (f"{stem}.json", json.dumps(result, indent=2)),
+        (f"{stem}.md", format_decomposition(result)),
     ):
         path = out / name
         with atomic_path(path) as tmp:
