@@ -6,7 +6,8 @@ each stage is a list of ``scrppl`` command lines, so the runner takes the functi
 
 * :class:`Stage` -- one step: command lines, inputs, outputs;
 * :func:`is_current` -- whether a stage's outputs are newer than its inputs (then it is skipped);
-* :func:`stages` -- dataset, detect, fit, simulate, kway and sweep for one dataset folder, output folder, seed and profile;
+* :func:`stages` -- dataset, detect, fit, simulate, kway, sweep (and decompose in the full profile) for one
+  dataset folder, output folder, seed and profile;
 * :func:`uses_existing_dataset` -- whether the dataset folder is used as it is rather than generated;
 * :func:`run_stages` -- run the stages that are not current;
 * :func:`failed_fits` -- the hierarchical fits that failed their diagnostics (``diagnostics.json``).
@@ -23,7 +24,18 @@ from pathlib import Path
 
 from scrppl._io import read_json
 
-__all__ = ["Stage", "is_current", "stages", "uses_existing_dataset", "run_stages", "failed_fits"]
+__all__ = [
+    "Stage",
+    "DECOMPOSE_ROWS",
+    "is_current",
+    "stages",
+    "uses_existing_dataset",
+    "run_stages",
+    "failed_fits",
+]
+
+#: The rows of the full run's decomposition stage (``scrppl decompose --rows``).
+DECOMPOSE_ROWS = ("random", "greedy_joint", "confident", "clairvoyant")
 
 
 @dataclass(frozen=True)
@@ -66,9 +78,10 @@ def stages(
     errors: str = "report",
     scheduler: str | None = None,
 ) -> list[Stage]:
-    """The pipeline, in order: dataset, detect, fit, simulate, kway and the difficulty sweep.
+    """The pipeline in order: dataset, detect, fit, simulate, kway, sweep and (full profile) decompose.
 
     The sweep (``scrppl sweep``) renders new images, so it runs only for a generated synthetic dataset.
+    The decomposition (``scrppl decompose``, rows :data:`DECOMPOSE_ROWS`) runs in the full profile.
 
     Parameters
     ----------
@@ -215,6 +228,19 @@ def stages(
                 # a sweep made with other levels, trials or chains than the profile's is rerun (its
                 # cached points at the same levels and settings are reused)
                 complete=lambda: _sweep_made_with(out / "sweep-summary.json", profile),
+            )
+        )
+    if profile == "full":
+        # where planning gains or loses views (scrppl decompose) on the experiment's trials: random, the
+        # paper's planner, the confident planner and the clairvoyant bound; the full run only (the book
+        # profile keeps its time). Last, chained after the previous stage to stay linear.
+        pipeline.append(
+            Stage(
+                "decompose",
+                "scrppl.cli.decompose",
+                (("decompose", *outdir, *common, "--rows", ",".join(DECOMPOSE_ROWS), "--quiet"),),
+                (pipeline[-1].outputs[0],),
+                (out / "decomposition.json", out / "decomposition.md"),
             )
         )
     return pipeline

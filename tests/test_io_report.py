@@ -226,7 +226,6 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     assert "| **total** | 100.0 | 159.0 | 1.59 |" in text and "on 2 cores (Test CPU)" in text
 
 
-
 def test_report_heldout_is_one_row_per_detector_and_target(tmp_path):
     text = write_report(_fake_run(tmp_path)).read_text()
     tables = _tables(text)
@@ -488,3 +487,66 @@ def test_report_sweep_section_has_one_row_per_point(tmp_path):
     assert len(rows) == 3
     assert "| 1.5 | dpm/car | 0.71 | 2.50 | 2.25 | 0.250 [0.123, 0.370] | 0.988 | NO |" in rows
     assert "2 of 3 fits pass every diagnostic gate." in sweep and "10000 paired trials" in sweep
+
+
+def _decomposition_entry(random, confident, clairvoyant, interval):
+    """One method's rows as summarise_decomposition writes them."""
+
+    def row(v, d):
+        return {
+            "views_to_confidence": v,
+            "difference_vs_random": {"mean": d[0], "lo": d[1], "hi": d[2]},
+            "share_of_room": {"mean": 0.1234567, "lo": 0.01, "hi": 0.2},
+        }
+
+    return {
+        "filter": "instance",
+        "rows": {
+            "random": row(random, (0.0, 0.0, 0.0)),
+            "confident": row(confident, interval),
+            "clairvoyant": row(clairvoyant, (clairvoyant - random, -1.0, -0.5)),
+        },
+        "room": {"mean": random - clairvoyant, "lo": 0.5, "hi": 1.0},
+    }
+
+
+def test_report_shows_the_decomposition_of_a_full_run_and_says_when_it_did_not_run(tmp_path):
+    import csv
+
+    from scrppl.pipeline import DECOMPOSE_ROWS
+
+    out = _fake_run(tmp_path)
+    text = write_report(out, profile="full").read_text()
+    assert "## Where planning gains or loses views" in text
+    assert "`decomposition.json` was not written (the `decompose` stage did not run)" in text
+    book = write_report(out, profile="book").read_text()
+    assert "Not run in the book profile: `scrppl decompose --out" in book
+    entry = _decomposition_entry(3.0925, 3.0421, 2.2081, (-0.0505, -0.112, 0.014))
+    summary = {
+        "settings": {"trials": 160, "rows": ["random", "confident", "clairvoyant"]},
+        "targets": {"car": {"methods": {"hierarchical+instance": entry}}},
+    }
+    (out / "decomposition.json").write_text(json.dumps(summary))
+    text = write_report(out, profile="full").read_text()
+    section = text.split("## Where planning gains or loses views")[1].split("\n## ")[0]
+    assert "on 160 paired trials per target" in section
+    assert "| car | hierarchical+instance | 3.09 | 3.04 (-0.05 [-0.11, 0.01]) |" in section
+    assert "2.21 (-0.88 [-1.00, -0.50]) | 0.12 [0.01, 0.20] |" in section
+    with (out / "report-decomposition.csv").open() as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert (
+        float(row["confident_views"]) == 3.0421 and float(row["confident_minus_random"]) == -0.0505
+    )
+    # the full profile's stage runs these rows, last in the pipeline
+    args = argparse.Namespace(root=tmp_path / "data", out=out, seed=0, profile="full", strict=True)
+    chain = stages(args)
+    assert chain[-1].name == "decompose" and set(chain[-1].inputs) <= set(chain[-2].outputs)
+    argv = chain[-1].argv[0]
+    assert (
+        argv[argv.index("--rows") + 1]
+        == ",".join(DECOMPOSE_ROWS)
+        == ("random,greedy_joint,confident,clairvoyant")
+    )
+    assert "decompose" not in [
+        s.name for s in stages(argparse.Namespace(**{**vars(args), "profile": "book"}))
+    ]

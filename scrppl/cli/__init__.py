@@ -9,7 +9,7 @@ Subcommands (each in its own module, each with ``--help``):
 * ``scrppl kway``      -- which of K categories: the K-way experiment (:mod:`scrppl.cli.kway`)
 * ``scrppl sweep``     -- planning vs random across imaging difficulty and detectors (:mod:`scrppl.cli.sweep`)
 * ``scrppl decompose`` -- where planning gains or loses views, on a simulated results folder
-  (:mod:`scrppl.cli.decompose`; not a stage of ``reproduce``)
+  (:mod:`scrppl.cli.decompose`; the last stage of ``reproduce`` in the full profile)
 * ``scrppl reproduce`` -- every stage in order, then the report (:mod:`scrppl.cli.reproduce`)
 
 Each module exposes ``register(subparsers)``, which adds its parser and sets ``func`` to a handler

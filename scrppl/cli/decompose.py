@@ -16,8 +16,9 @@ Writes ``decomposition.json`` (every number) and ``decomposition.md`` (the table
 views to confidence, the paired 95% interval of the row minus random and minus the row above, and the
 share of the clairvoyant room (random minus clairvoyant) it captures; and the information about the
 class of a first look at each relative azimuth. With the experiment's seed and ``--trials`` the
-``random`` and ``greedy_joint`` rows are the experiment's ``random`` and ``sampled`` results. Not a
-stage of ``scrppl reproduce``.
+``random`` and ``greedy_joint`` rows are the experiment's ``random`` and ``sampled`` results. In the
+full profile ``scrppl reproduce`` runs it as its last stage (rows random, greedy_joint, confident and
+clairvoyant; :data:`scrppl.pipeline.DECOMPOSE_ROWS`).
 
 With ``--model-world`` the same ladder runs on responses drawn from each method's own model
 (``decomposition-model-world.json`` and ``.md``): how much planning could save if the model were right,
