@@ -279,6 +279,28 @@ def test_calibration_and_bootstrap(rng):
     np.testing.assert_allclose([d, dlo, dhi], 0.5)  # identical pairs: no spread
 
 
+def test_bootstrap_resamples_are_the_loops_resamples(rng):
+    """The blocked bootstrap draws the same resamples as the plain loop written here (same seed, same
+    order of draws), for every block boundary: a mean per resample, and positives then negatives."""
+    x = rng.normal(size=(150, 3))
+    label = rng.uniform(size=150) < 0.4
+    for n_boot in (1, 63, 64, 65, 200):
+        g = np.random.default_rng(9)
+        boots = np.stack([x[g.integers(0, 150, 150)].mean(0) for _ in range(n_boot)])
+        lo, hi = np.quantile(boots, [0.025, 0.975], axis=0)
+        np.testing.assert_allclose(M.bootstrap_mean(9, x, n_boot)[1:], [lo, hi], rtol=1e-12)
+        g = np.random.default_rng(9)
+        pos, neg = x[label], x[~label]
+        diff = [
+            pos[g.integers(0, len(pos), len(pos))].mean(0) - neg[g.integers(0, len(neg), len(neg))].mean(0)
+            for _ in range(n_boot)
+        ]  # fmt: skip
+        lo, hi = np.quantile(np.stack(diff), [0.025, 0.975], axis=0)
+        np.testing.assert_allclose(
+            M.bootstrap_tp_minus_tn(9, x, label, n_boot)[1:], [lo, hi], rtol=1e-12
+        )
+
+
 def test_calibration_bins_are_floored_half_open_intervals():
     """Catches calibration bins placed by rounding ``p * n_bins`` instead of flooring it: bin ``b`` of ten
     is ``[b / 10, (b + 1) / 10)`` (the last one closed at 1). By hand: 0.06 lies in bin 0, 0.14 in bin 1,

@@ -139,12 +139,36 @@ def bootstrap_mean(seed: int, x, n_boot: int = 1000, level: float = 0.95):
     """
     x = np.asarray(x, np.float64)
     rng = np.random.default_rng(seed)
-    n = x.shape[0]
-    boots = np.empty((n_boot, *x.shape[1:]))
-    for b in range(n_boot):
-        boots[b] = x[rng.integers(0, n, n)].mean(0)
+    boots = _resampled_means(rng, [x], n_boot)[0]
     lo, hi = _quantiles(boots, level)
     return x.mean(0), lo, hi
+
+
+#: Resamples whose counts are multiplied by the data at once in :func:`_resampled_means` (memory, not
+#: the result).
+_BOOT_BLOCK = 64
+
+
+def _resampled_means(rng, groups, n_boot: int) -> list[np.ndarray]:
+    """Bootstrap means of each array in ``groups`` (resampled along axis 0), ``(n_boot, *shape[1:])`` each.
+
+    Resample ``b`` draws ``rng.integers(0, n, n)`` for each group in turn, exactly as a loop of
+    ``x[rng.integers(0, n, n)].mean(0)`` would (the same draws, so the same resamples); each mean is then
+    computed as counts times data, a block of resamples per matrix product.
+    """
+    flats = [np.asarray(x, np.float64).reshape(len(x), -1) for x in groups]
+    out = [np.empty((n_boot, f.shape[1])) for f in flats]
+    counts = [np.zeros((_BOOT_BLOCK, len(f))) for f in flats]
+    for start in range(0, n_boot, _BOOT_BLOCK):
+        stop = min(start + _BOOT_BLOCK, n_boot)
+        for c in counts:
+            c[:] = 0.0
+        for i in range(stop - start):
+            for c, f in zip(counts, flats, strict=True):
+                c[i] = np.bincount(rng.integers(0, len(f), len(f)), minlength=len(f))
+        for o, c, f in zip(out, counts, flats, strict=True):
+            o[start:stop] = c[: stop - start] @ f / len(f)
+    return [o.reshape((n_boot, *np.shape(x)[1:])) for o, x in zip(out, groups, strict=True)]
 
 
 def bootstrap_tp_minus_tn(seed: int, response_sum, label, n_boot: int = 1000, level: float = 0.95):
@@ -154,12 +178,8 @@ def bootstrap_tp_minus_tn(seed: int, response_sum, label, n_boot: int = 1000, le
     value = tp_minus_tn(x, label)
     pos, neg = x[label], x[~label]
     rng = np.random.default_rng(seed)
-    boots = np.empty((n_boot, *x.shape[1:]))
-    for b in range(n_boot):
-        boots[b] = pos[rng.integers(0, len(pos), len(pos))].mean(0) - neg[
-            rng.integers(0, len(neg), len(neg))
-        ].mean(0)
-    lo, hi = _quantiles(boots, level)
+    boot_pos, boot_neg = _resampled_means(rng, [pos, neg], n_boot)
+    lo, hi = _quantiles(boot_pos - boot_neg, level)
     return value, lo, hi
 
 
