@@ -262,7 +262,7 @@ def test_planner_scores_converge_to_the_depth_two_value(kind, key):
     """With one draw the planner's only approximation is sampling: many samples give the integral."""
     model, start, f0, b, _ = tiny(kind)
     views, valid = views_valid(start)
-    want = depth_two_upper_by_integration(model, kind, start, f0, np.linspace(-4.0, 6.0, 401))
+    want = depth_two_upper_by_integration(model, kind, start, f0, np.linspace(-4.0, 6.0, 241))
     got = np.asarray(
         C.confident_scores(key, model, b, views, valid, n_samples=4096, leaf_samples=64)
     )
