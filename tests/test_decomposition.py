@@ -460,3 +460,81 @@ def test_model_world_refuses_a_model_of_other_views():
     )  # fmt: skip
     with pytest.raises(ValueError, match="differ from the trials'"):
         D.model_world_trials(jax.random.key(0), model, trials)
+
+
+def test_frame_and_figure_show_the_ladders_numbers(ladder):
+    """decomposition_frame / view_information_frame read the saved numbers back, and the figures draw
+    exactly those: each planner's marker at its paired mean, the black bar at minus the room, which is
+    mean(random) - mean(clairvoyant) of the trials themselves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_decomposition, plot_view_information
+
+    ds, entry = ladder
+    result = {"settings": {"trials": TRIALS}, "targets": {"car": entry}}
+    frame = D.decomposition_frame(result)
+    rows = ds["row"].values.tolist()
+    assert list(frame["row"]) == rows and set(frame["target"]) == {"car"}
+    v = ds["views_to_confidence"].values[0].astype(float)  # (row, trial), the one method
+    np.testing.assert_allclose(frame["views"], v.mean(1))
+    room = v[rows.index("random")].mean() - v[rows.index("clairvoyant")].mean()
+    np.testing.assert_allclose(frame["room"], room)
+    assert (frame["lo"] <= frame["minus_random"]).all() and (
+        frame["minus_random"] <= frame["hi"]
+    ).all()
+    assert frame.set_index("row").loc["clairvoyant", "share"] == pytest.approx(1.0)
+
+    fig = plot_decomposition(result)
+    ax = fig.axes[0]
+    drawn = {
+        round(float(line.get_ydata()[0]), 12)
+        for line in ax.lines
+        if line.get_marker() not in ("None", "", None, "_") and len(line.get_ydata()) == 1
+    }
+    planners = frame[~frame["row"].isin(["random", "clairvoyant"])]
+    assert drawn == {round(float(x), 12) for x in planners["minus_random"]}
+    bars = [c for c in ax.collections if c.get_linewidth()[0] == 2]
+    assert len(bars) == 1
+    np.testing.assert_allclose(bars[0].get_segments()[0][:, 1], -room)
+    with pytest.raises(ValueError, match="rows .*two_step.* are not in the decomposition"):
+        plot_decomposition(result, rows=["two_step"])
+    plt.close(fig)
+
+    info = D.view_information_frame(result)
+    np.testing.assert_allclose(info.loc["car"], entry["view_information"]["gaussian"]["nats"][0][0])
+    assert info.attrs["prior_entropy"] == pytest.approx(np.log(2))
+    fig = plot_view_information(result)
+    np.testing.assert_allclose(fig.axes[0].lines[0].get_ydata(), info.loc["car"])
+    with pytest.raises(ValueError, match="no per-view information for model kind 'hierarchical'"):
+        D.view_information_frame(result, "hierarchical")
+    with pytest.raises(ValueError, match="expected a decomposition"):
+        D.decomposition_frame({"trials": 3})
+    plt.close(fig)
+
+
+def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
+    """benchmarks/record_decomposition.py: the record holds the run's numbers unchanged, and a missing
+    or corrupt decomposition is named."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).parents[1] / "benchmarks" / "record_decomposition.py"
+    spec = importlib.util.spec_from_file_location("record_decomposition", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    _, entry = ladder
+    result = {"seed": SEED, "settings": {"trials": TRIALS}, "targets": {"car": entry}}
+    (tmp_path / "decomposition.json").write_text(json.dumps(result))
+    out = tmp_path / "record.json"
+    mod.main([str(tmp_path), "--out", str(out)])
+    record = json.loads(out.read_text())
+    assert record["real"] == json.loads((tmp_path / "decomposition.json").read_text())
+    assert record["model_world"] is None and record["machine"]["cores"] >= 1
+    with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):
+        mod.main([str(tmp_path / "nowhere"), "--out", str(out)])
+    (tmp_path / "decomposition.json").write_text("{not json")
+    with pytest.raises(SystemExit, match="decomposition.json: not a JSON file"):
+        mod.main([str(tmp_path), "--out", str(out)])

@@ -8,7 +8,9 @@
   (planner comparison), calibration, repeated views, expected entropy per candidate view and the sampling
   error of eq. 5;
 * :mod:`scrppl.plotting.kway` -- K-way recognition: accuracy against views, confusion matrices;
-* :mod:`scrppl.plotting.sweep` -- the difficulty sweep: views saved by planning against detector quality.
+* :mod:`scrppl.plotting.sweep` -- the difficulty sweep: views saved by planning against detector quality;
+* :mod:`scrppl.plotting.decomposition` -- views saved by each planner beside the clairvoyant room, and the
+  information each relative azimuth gives.
 """
 
 from scrppl.plotting._save import save_figure
@@ -29,6 +31,7 @@ from scrppl.plotting.dataset import (
     show_images,
     view_sphere,
 )
+from scrppl.plotting.decomposition import plot_decomposition, plot_view_information
 from scrppl.plotting.detectors import plot_mean_response_by_azimuth, plot_response_over_azimuth
 from scrppl.plotting.kway import (
     plot_kway_accuracy,
@@ -54,6 +57,8 @@ __all__ = [
     "show_image",
     "show_images",
     "save_figure",
+    "plot_decomposition",
+    "plot_view_information",
     "plot_response_over_azimuth",
     "plot_mean_response_by_azimuth",
     "plot_viewpoint_functions",

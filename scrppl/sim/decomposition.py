@@ -42,7 +42,8 @@ each relative azimuth gives about the class (:func:`scrppl.confident.view_inform
 * :func:`decompose_target` -- one target of a results folder, on the experiment's trials;
 * :func:`decompose_results` -- every simulated target of a results folder (``scrppl decompose``);
 * :func:`format_decomposition`, :func:`save_decomposition` -- ``decomposition.md`` and
-  ``decomposition.json``.
+  ``decomposition.json``; :func:`decomposition_frame`, :func:`view_information_frame` -- a saved
+  decomposition as tables (what :mod:`scrppl.plotting.decomposition` draws).
 
 Cost per trial and decision (``C`` candidates, ``N O A`` mixture components): the greedy rows score ``C``
 views with ``M`` draws; ``two_step`` runs that for ``C x M1`` first responses; ``confident`` scores
@@ -92,6 +93,8 @@ __all__ = [
     "decompose_results",
     "format_decomposition",
     "save_decomposition",
+    "decomposition_frame",
+    "view_information_frame",
 ]
 
 #: The rows of the decomposition, top to bottom.
@@ -1032,3 +1035,99 @@ def save_decomposition(result: Mapping[str, Any], out: str | Path) -> list[Path]
             tmp.write_text(text)
         written.append(path)
     return written
+
+
+# ------------------------------------------------------------------------------------------------
+# a saved decomposition as tables
+
+#: The columns of :func:`decomposition_frame`.
+FRAME_COLUMNS = (
+    "target", "method", "row", "views", "reached", "minus_random", "lo", "hi",
+    "share", "share_lo", "share_hi", "room", "room_lo", "room_hi",
+)  # fmt: skip
+
+
+def decomposition_frame(result: Mapping[str, Any]):
+    """A decomposition (``decomposition.json``, :func:`decompose_results`) as one long table.
+
+    Parameters
+    ----------
+    result
+        The dictionary :func:`decompose_results` returns and ``decomposition.json`` holds.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per (target, method, ladder row), in the file's order, with the columns
+        :data:`FRAME_COLUMNS`: mean ``views`` to confidence, the fraction ``reached``, the paired
+        difference from random (``minus_random``, ``lo``, ``hi``; negative = fewer views), the share of
+        the clairvoyant room (``share``, ``share_lo``, ``share_hi``; NaN without the bound) and the room
+        itself (random minus clairvoyant, ``room``, ``room_lo``, ``room_hi``; NaN without the bound).
+    """
+    import pandas as pd
+
+    if "targets" not in result:
+        raise ValueError(
+            "expected a decomposition (the contents of decomposition.json: a 'targets' entry), got "
+            f"keys {sorted(result)}"
+        )
+    nan = float("nan")
+    records = []
+    for target, entry in result["targets"].items():
+        for method, m in entry["methods"].items():
+            room = m.get("room") or {}
+            for row, r in m["rows"].items():
+                d = r["difference_vs_random"]
+                share = r.get("share_of_room") or {}
+                records.append(
+                    (
+                        target, method, row, r["views_to_confidence"], r["reached_confidence"],
+                        d["mean"], d["lo"], d["hi"],
+                        share.get("mean", nan), share.get("lo", nan), share.get("hi", nan),
+                        room.get("mean", nan), room.get("lo", nan), room.get("hi", nan),
+                    )
+                )  # fmt: skip
+    return pd.DataFrame.from_records(records, columns=list(FRAME_COLUMNS))
+
+
+def view_information_frame(result: Mapping[str, Any], kind: str | None = None):
+    """The per-view information of a decomposition: one row per target, one column per azimuth.
+
+    Parameters
+    ----------
+    result
+        The contents of ``decomposition.json``.
+    kind
+        The model kind (``"gaussian"``, ``"hierarchical"``; default: the last one recorded, the
+        richest model).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index: target; columns ``0 .. A-1``: the information (nats) a first look at relative azimuth
+        ``a`` gives about the class, averaged over elevations and scales. ``attrs["prior_entropy"]``
+        is its upper bound, the entropy of the class prior.
+    """
+    import pandas as pd
+
+    rows, prior = {}, None
+    for target, entry in result["targets"].items():
+        info = entry.get("view_information") or {}
+        if not info:
+            continue
+        chosen = kind if kind is not None else list(info)[-1]
+        if chosen not in info:
+            raise ValueError(
+                f"no per-view information for model kind {chosen!r} on target {target!r} "
+                f"(recorded: {sorted(info)})"
+            )
+        nats = np.asarray(info[chosen]["nats"], dtype=np.float64)
+        rows[target] = nats.reshape(-1, nats.shape[-1]).mean(0)
+        prior = info[chosen]["prior_entropy"]
+    if not rows:
+        raise ValueError("the decomposition records no per-view information")
+    frame = pd.DataFrame(rows).T
+    frame.index.name = "target"
+    frame.columns.name = "relative azimuth"
+    frame.attrs["prior_entropy"] = prior
+    return frame
