@@ -15,6 +15,8 @@ Usage::
     # CI: one extra run, fail when any claim does not hold in it
     .venv/bin/python scripts/book_claims.py --run seed1=results-book-seed1 --require-all
 
+Pages run ``--jobs`` at a time (default 2), each in its own kernel.
+
 Each ``--run NAME=FOLDER`` names a run folder of ``scrppl reproduce`` (with its run.json). ``--pages``
 restricts the pages (default: every chapter, ``book/chapters/*.md``). With ``--out`` an existing record is
 updated: the runs given replace those of the same name, and the others are kept as long as the assert
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import asyncio
 import json
 import os
 import platform
@@ -149,9 +152,16 @@ def instrument_page(path: Path, page: str) -> tuple[nbformat.NotebookNode, list[
 
 def run_page(nb, claims, results: Path, log: Path, timeout: int) -> list[dict]:
     """Execute the instrumented page against ``results``; the claims with whether each held."""
-    env_before = {k: os.environ.get(k) for k in ("SCRPPL_RESULTS", RECORD_VAR)}
-    os.environ["SCRPPL_RESULTS"] = str(results.resolve())
-    os.environ[RECORD_VAR] = str(log)
+    return asyncio.run(run_page_async(nb, claims, results, log, timeout))
+
+
+async def run_page_async(nb, claims, results: Path, log: Path, timeout: int) -> list[dict]:
+    """:func:`run_page` as a coroutine, so that several pages can run at once in one event loop.
+
+    The kernel gets ``SCRPPL_RESULTS`` and the claims log through its own environment (this process's is
+    left alone), each page with its own log.
+    """
+    env = dict(os.environ, SCRPPL_RESULTS=str(results.resolve()), **{RECORD_VAR: str(log)})
     log.write_text("")
     error = None
     try:
@@ -162,15 +172,9 @@ def run_page(nb, claims, results: Path, log: Path, timeout: int) -> list[dict]:
             allow_errors=False,
             resources={"metadata": {"path": str(ROOT / "book" / "chapters")}},
         )
-        client.execute()
+        await client.async_execute(env=env)
     except Exception as exc:  # a cell raised something else than a recorded assert
         error = f"{type(exc).__name__}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else ''}"
-    finally:
-        for k, v in env_before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     outcome: dict[str, bool] = {}
     details: dict[str, str] = {}
     for line in log.read_text().splitlines():
@@ -205,6 +209,8 @@ def main(argv=None) -> int:
     p.add_argument("--cpu", default=None,
                    help="how the runs' CPU features were set (recorded; e.g. 'narrowed: AVX2')")
     p.add_argument("--timeout", type=int, default=600, help="seconds per cell")
+    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                   help="pages executed at once, each in its own kernel (default: 2, or 1 on one core)")
     p.add_argument("--require-all", action="store_true",
                    help="exit 1 when a claim fails (or a cell raises) in any given run")
     args = p.parse_args(argv)
@@ -227,20 +233,28 @@ def main(argv=None) -> int:
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
         for name, folder in runs.items():
-            rows = []
-            for path in pages:
+
+            async def one(i, path, gate, name=name, folder=folder):
                 page = path.resolve().relative_to(ROOT / "book").with_suffix("").as_posix()
                 nb, claims = instrument_page(path, page)
-                t0 = time.time()
-                got = run_page(nb, claims, folder, Path(tmp) / "claims.jsonl", args.timeout)
+                async with gate:
+                    t0 = time.time()
+                    log = Path(tmp) / f"claims-{i}.jsonl"
+                    got = await run_page_async(nb, claims, folder, log, args.timeout)
                 bad = [r for r in got if r["held"] is not True]
-                failures += len(bad)
-                print(f"[claims] {name}: {page}: {len(got) - len(bad)} of {len(got)} held "
-                      f"({time.time() - t0:.0f} s)", flush=True)
-                for r in bad:
-                    print(f"[claims]   FAILED line {r['line']}: {r['text']}  {r['detail']}", flush=True)
-                rows += got
-            results[name] = rows
+                lines = [f"[claims] {name}: {page}: {len(got) - len(bad)} of {len(got)} held "
+                         f"({time.time() - t0:.0f} s)"]
+                lines += [f"[claims]   FAILED line {r['line']}: {r['text']}  {r['detail']}" for r in bad]
+                print("\n".join(lines), flush=True)
+                return got, len(bad)
+
+            async def every_page():
+                gate = asyncio.Semaphore(max(1, args.jobs))  # pages whose kernels run at once
+                return await asyncio.gather(*(one(i, p, gate) for i, p in enumerate(pages)))
+
+            done = asyncio.run(every_page())  # in the pages' order, whatever order they finish in
+            results[name] = [r for got, _ in done for r in got]
+            failures += sum(n for _, n in done)
 
     if args.out:
         record = json.loads(args.out.read_text()) if args.out.exists() else {}

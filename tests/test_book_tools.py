@@ -77,6 +77,40 @@ def test_claims_are_recorded_not_raised(tmp_path):
     assert "fails for the second value" in rows[1]["detail"]
 
 
+def test_pages_run_in_parallel_kernels_each_with_its_run_and_log(tmp_path, monkeypatch):
+    """--jobs 2: each page's kernel sees the run folder through its own environment (this process's is
+    untouched), the record keeps the pages' order, and a failed claim on one page makes the exit 1."""
+    claims = _script("book_claims")
+    first = tmp_path / "a.md"
+    first.write_text(PAGE)
+    second = tmp_path / "b.md"
+    second.write_text(
+        PAGE.split("# A page")[0]
+        + "# B\n\n```{code-cell} ipython3\nimport os\n"
+        + "assert os.environ['SCRPPL_RESULTS'].endswith('run')\n```\n"
+    )
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text(json.dumps({"profile": "book", "seed": 3}))
+    monkeypatch.setattr(claims, "ROOT", tmp_path)
+    (tmp_path / "book" / "chapters").mkdir(parents=True)
+    pages = []
+    for src in (first, second):
+        dst = tmp_path / "book" / "chapters" / src.name
+        dst.write_text(src.read_text())
+        pages.append(str(dst))
+    monkeypatch.delenv("SCRPPL_RESULTS", raising=False)
+    out = tmp_path / "record.json"
+    code = claims.main(
+        ["--run", f"s3={run}", "--pages", *pages, "--jobs", "2", "--out", str(out), "--require-all"]
+    )
+    assert code == 1  # the second assert of the first page fails
+    assert "SCRPPL_RESULTS" not in __import__("os").environ
+    record = json.loads(out.read_text())
+    assert [c["page"] for c in record["claims"]] == ["chapters/a"] * 4 + ["chapters/b"]
+    assert [c["held_in"]["s3"] for c in record["claims"]] == [True, False, True, True, True]
+
+
 def test_code_balance_counts_hidden_and_visible_lines(tmp_path):
     balance = _script("book_code_balance")
     page = tmp_path / "page.md"
