@@ -1,7 +1,7 @@
 """Checks for the exercises of chapter 9 (the experiment): reading paired trials.
 
-Views to confidence, the paper's TP-minus-TN statistic, and paired against unpaired bootstrap intervals
-of the difference between two planners run on the same trials. Every reference is a function of
+Views to confidence, the paper's TP-minus-TN statistic, paired against unpaired bootstrap intervals
+of the difference between two planners run on the same trials, and the room hindsight has over any policy. Every reference is a function of
 :mod:`scrppl.sim.metrics`; the inputs are small synthetic per-step records (no planner is run here).
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from scrppl.exercises._core import Case, Mistake, check_function, exercise
 
-__all__ = ["check_9_1", "check_9_2", "check_9_3", "check_9_4", "planner_pairs"]
+__all__ = ["check_9_1", "check_9_2", "check_9_3", "check_9_4", "check_9_5", "planner_pairs"]
 
 
 # -- 9.1 views to confidence ------------------------------------------------------------------------
@@ -521,3 +521,91 @@ def check_9_4(unpaired_interval) -> str:
         convert=_convert3,
     )
     return f"agrees with scrppl.sim.metrics.bootstrap_tp_minus_tn on {n} inputs (same seed)"
+
+
+# -- 9.5 the room hindsight has -------------------------------------------------------------------
+def _room_ref(p, n):
+    """Brute force over the 2^n outcomes (each view decisive or not): (any policy, clairvoyant)."""
+    from itertools import product
+
+    policy = clairvoyant = 0.0
+    for outcome in product((True, False), repeat=int(n)):
+        prob = float(np.prod([p if d else 1.0 - p for d in outcome]))
+        first = next((k + 1 for k, d in enumerate(outcome) if d), n + 1)  # views in the order seen
+        policy += prob * first
+        clairvoyant += prob * (1 if any(outcome) else n + 1)
+    return np.array([policy, clairvoyant])
+
+
+def _room_cases() -> list[Case]:
+    return [
+        Case((0.5, 2), "p = 0.5, n = 2 (the chapter's toy)"),
+        Case((0.3, 4), "p = 0.3, n = 4"),
+        Case((0.8, 7), "p = 0.8, n = 7"),
+        Case((0.15, 6), "p = 0.15, n = 6: views rarely decisive"),
+        Case((1.0, 3), "p = 1: the first view always settles it"),
+        Case((0.0, 3), "p = 0: never confident"),
+    ]
+
+
+def _geometric(p, n):
+    q = 1.0 - p
+    return np.array([1.0 / p if p > 0 else np.inf, 1.0 + n * q**n])
+
+
+_ROOM_MISTAKES = [
+    Mistake(
+        "a trial that never becomes confident counts n + 1 views (the experiment's A + 1), not n.",
+        lambda p, n: _room_ref(p, n) - (1.0 - p) ** n,
+    ),
+    Mistake(
+        "the clairvoyant bound still counts n + 1 views when no view is decisive: hindsight cannot "
+        "make a view decisive, only pick one that is.",
+        lambda p, n: _room_ref(p, n) - np.array([0.0, n * (1.0 - p) ** n]),
+    ),
+    Mistake(
+        "a policy has only n views: the chance that none of them is decisive, (1 - p)^n, adds n + 1 "
+        "views; an unbounded geometric count 1 / p ignores the end of the trial.",
+        _geometric,
+    ),
+    Mistake(
+        "return (policy, clairvoyant): the policy's views first.",
+        lambda p, n: _room_ref(p, n)[::-1],
+    ),
+]
+
+
+def _room_convert(x):
+    if isinstance(x, list | tuple | np.ndarray) and len(x) == 2:
+        return np.asarray([float(v) for v in x])
+    return x
+
+
+@exercise(
+    "9.5",
+    "The room hindsight has",
+    "medium",
+    reference=lambda: (lambda p, n: tuple(_room_ref(p, n)),),
+    wrong=lambda: [(m.fn,) for m in _ROOM_MISTAKES],
+)
+def check_9_5(hindsight_room) -> str:
+    """Check exercise 9.5.
+
+    Compares ``hindsight_room(p, n) -> (policy, clairvoyant)``, the expected views to confidence of any
+    policy and of the clairvoyant bound when each of ``n`` alike views is decisive with probability
+    ``p`` (never confident counts ``n + 1``), against enumeration of the ``2^n`` outcomes.
+    """
+    n = check_function(
+        hindsight_room,
+        _room_ref,
+        _room_cases(),
+        name="hindsight_room(p, n)",
+        rtol=1e-9,
+        atol=1e-12,
+        mistakes=_ROOM_MISTAKES,
+        hint="a policy stops at the first decisive view in the order it looks: k views with "
+        "probability p (1 - p)^(k - 1), n + 1 if none; the clairvoyant bound needs 1 view whenever "
+        "any view is decisive, n + 1 otherwise.",
+        convert=_room_convert,
+    )
+    return f"agrees with enumeration of every outcome on {n} inputs"
