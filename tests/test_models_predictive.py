@@ -346,3 +346,53 @@ def test_a_chain_whose_energy_never_moves_fails_the_ebfmi_gate(rng):
     rep = diagnose(tree)
     assert np.isnan(rep["ebfmi"][2]) and not rep["ok"]
     assert any(f.startswith("E-BFMI") and "[2]" in f for f in rep["failures"])
+
+
+def test_predictive_checks_pass_the_true_model_and_catch_what_each_reading_ignores(rng):
+    """predictive_checks on views drawn from a one-draw hierarchical model: sequential scores standard
+    normal and uncorrelated, the views of one object correlated as tau^2 / (sigma^2 + tau^2) says. The
+    paper's reading of the same data (tau = 0, the same marginal variance) is caught by the correlation
+    it ignores; heavy-tailed noise by the tails and the kurtosis."""
+    from scrppl.models.evaluate import predictive_checks
+
+    a, n_i = 6, 4000
+    mu = rng.normal(0, 1, size=(1, 2, a, 1, 1))
+    sd = np.full(mu.shape, 0.6)
+    tau = np.array([[0.8, 0.5]])
+    o = np.arange(n_i) % 2
+    u = rng.normal(size=n_i) * tau[0, o]
+    noise = rng.normal(size=(n_i, a, 1, 1))
+    y = mu[0, o] + u[:, None, None, None] + sd[0, o] * noise
+    observed = rng.random(y.shape) > 0.1
+    data = make_view_data(np.where(observed, y, 0.0), o, np.zeros(n_i, int), observed)
+    truth = ResponseModel(jnp.asarray(mu), jnp.asarray(sd), jnp.asarray(tau))
+    got = predictive_checks(truth, data)
+    assert list(got.index) == ["absent", "present"]
+    rho = tau[0] ** 2 / (0.36 + tau[0] ** 2)  # (absent, present)
+    np.testing.assert_allclose(got["mean_square"], 1.0, atol=0.05)
+    np.testing.assert_allclose(got["kurtosis"], 3.0, atol=0.2)
+    np.testing.assert_allclose(got["lag1"], 0.0, atol=0.04)
+    np.testing.assert_allclose(got["view_corr_model"], rho, rtol=1e-6)  # float32 model
+    np.testing.assert_allclose(got["view_corr_observed"], rho, atol=0.03)
+    assert (got["beyond_3"] < 0.006).all() and (got["instances"] == n_i // 2).all()
+    assert (got["views"] == [observed[o == k].sum() for k in (0, 1)]).all()
+
+    paper = ResponseModel(
+        jnp.asarray(mu), jnp.asarray(np.sqrt(sd**2 + tau[0][None, :, None, None, None] ** 2)),
+        jnp.zeros((1, 2)),
+    )  # fmt: skip
+    flat = predictive_checks(paper, data)
+    np.testing.assert_allclose(flat["mean_square"], 1.0, atol=0.05)  # each view alone is right
+    assert (flat["view_corr_model"] == 0).all()
+    np.testing.assert_allclose(flat["view_corr_observed"], rho, atol=0.03)
+    assert (flat["lag1"] > rho - 0.05).all()  # successive views share the object's offset
+
+    heavy = y + sd[0, o] * (rng.standard_t(3, size=y.shape) * np.sqrt(1 / 3) - noise)
+    tails = predictive_checks(truth, data._replace(y=np.where(observed, heavy, 0.0)))
+    assert (tails["kurtosis"] > 4).all() and (tails["beyond_3"] > 0.006).all()
+
+    with pytest.raises(ValueError, match="grid"):
+        predictive_checks(ResponseModel(mu[:, :, :4], sd[:, :, :4], jnp.asarray(tau)), data)
+    bad = data._replace(y=np.where(observed, np.nan, 0.0))
+    with pytest.raises(ValueError, match="NaN"):
+        predictive_checks(truth, bad)

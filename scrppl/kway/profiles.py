@@ -95,6 +95,7 @@ from numpyro.handlers import reparam
 from numpyro.infer.reparam import LocScaleReparam
 
 from scrppl.models.data import ViewData
+from scrppl.models.evaluate import sequential_normal_scores  # re-exported: it lived here first
 from scrppl.models.hierarchical import (
     FREE_PARAMETERS,
     SIGMA_SPREAD_SCALE,
@@ -624,60 +625,6 @@ def kway_heldout_lpd(model, table: xr.Dataset, detector: str, split: str = "test
         coords={"target": categories, "category": categories},
         attrs={"detector": str(detector), "split": str(split)},
     )
-
-
-def sequential_normal_scores(model: ResponseModel, y, observed, category) -> np.ndarray:
-    """Normal scores of the one-step-ahead predictive of each view given the views before it.
-
-    A posterior predictive check of what the instance-aware filter uses: for each instance of true
-    category ``k`` and each ring ``(e, s)``, the views are taken in azimuth order; view ``j``'s response is
-    scored by the exact predictive given views ``1 .. j-1`` -- per posterior draw the Kalman predictive of
-    the instance effect (:func:`scrppl.belief.instance_update`), mixed over the draws with weights
-    proportional to their evidence so far -- as its PIT value ``P(F <= f)`` mapped through the standard
-    normal quantile. Under a calibrated model the scores are independent standard normals: their mean
-    square is 1 and ``|z| > 3`` happens 0.27 % of the time.
-
-    Parameters
-    ----------
-    model
-        A ``ResponseModel`` whose class ``k`` is category ``k`` (one target detector of a K-way model).
-    y, observed
-        Held-out responses ``(I, A, E, S)`` on the model's scale, and their mask.
-    category
-        ``(I,)`` true category index of each instance.
-
-    Returns
-    -------
-    Array ``(I, E, S, A)`` of normal scores (NaN at unobserved views).
-    """
-    from scipy import special, stats
-
-    mu, sd, tau = (np.asarray(x, np.float64) for x in (model.mu, model.sigma, model.tau))
-    y = np.asarray(y, np.float64)
-    observed = np.asarray(observed, bool)
-    category = np.asarray(category, int)
-    n_inst, n_az, n_el, n_sc = y.shape
-    out = np.full((n_inst, n_el, n_sc, n_az), np.nan)
-    m, sd, t2 = mu[:, category], sd[:, category], tau[:, category] ** 2  # (N, I, ...), (N, I)
-    for e in range(n_el):
-        for c in range(n_sc):
-            sw = np.zeros_like(t2)
-            swr = np.zeros_like(t2)
-            log_ev = np.zeros_like(t2)
-            for a in range(n_az):
-                seen = observed[:, a, e, c]  # (I,)
-                r = y[:, a, e, c] - m[:, :, a, e, c]
-                post_var = t2 / (1.0 + t2 * sw)
-                pred_sd = np.sqrt(sd[:, :, a, e, c] ** 2 + post_var)
-                zn = (r - post_var * swr) / pred_sd
-                w = np.exp(log_ev - special.logsumexp(log_ev, axis=0))
-                pit = np.sum(w * stats.norm.cdf(zn), axis=0)
-                score = stats.norm.ppf(np.clip(pit, 1e-12, 1 - 1e-12))
-                out[:, e, c, a] = np.where(seen, score, np.nan)
-                log_ev = log_ev + np.where(seen, stats.norm.logpdf(zn) - np.log(pred_sd), 0.0)
-                sw = sw + np.where(seen, 1.0 / sd[:, :, a, e, c] ** 2, 0.0)
-                swr = swr + np.where(seen, r / sd[:, :, a, e, c] ** 2, 0.0)
-    return out
 
 
 def profiles_path(models_dir, detector: str, target: str):

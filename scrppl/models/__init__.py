@@ -6,7 +6,8 @@
   diagnostics (:mod:`~scrppl.models.diagnostics`);
 * :mod:`~scrppl.models.predictive` -- a posterior as a :class:`ResponseModel`;
 * :mod:`~scrppl.models.study` -- every detector x target fitted, checked and scored (``scrppl fit``);
-* :mod:`~scrppl.models.evaluate` -- held-out log predictive density and calibration;
+* :mod:`~scrppl.models.evaluate` -- held-out log predictive density and calibration, and posterior
+  predictive checks of what the filters use;
 * :mod:`~scrppl.models.simulate` -- response tables from known parameters;
 * :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
 * :func:`load_response_model` -- what the rest of the pipeline calls: a saved fit as a
@@ -52,6 +53,8 @@ __all__ = [
     "load_posterior",
     "evaluate_models",
     "heldout_scores",
+    "predictive_checks",
+    "sequential_normal_scores",
     "simulate_response_table",
     "TrueViewpointModel",
     "random_true_model",
@@ -80,6 +83,8 @@ _LAZY = {
     "load_posterior": "io",
     "evaluate_models": "evaluate",
     "heldout_scores": "evaluate",
+    "predictive_checks": "evaluate",
+    "sequential_normal_scores": "evaluate",
     "simulate_response_table": "simulate",
     "TrueViewpointModel": "simulate",
     "random_true_model": "simulate",

@@ -13,6 +13,18 @@ For every ``test`` instance ``i`` (class ``o_i``) with observed views ``j = 1..n
 
 Each is averaged over instances; the standard error is the sd over instances / sqrt(number of
 instances). Responses of one instance are correlated, so instances (not responses) are the unit.
+
+Posterior predictive checks of what the filters use (:func:`predictive_checks`), per class:
+
+* **tails and spread of the sequential predictive** (:func:`sequential_normal_scores`): each held-out
+  view scored by the exact predictive given the views before it on its ring, the instance-aware filter's
+  own predictive, as a normal score -- mean square 1, ``|z| > 3`` in 0.27 % of views, kurtosis 3 and no
+  correlation between successive scores under a calibrated model; the mean square per relative azimuth
+  shows whether some views are wider than the model thinks;
+* **correlation between views of one object**: the correlation of two views' standardised residuals
+  ``(f - mu) / sqrt(sigma^2 + tau^2)`` within an instance, observed against the model's own
+  ``tau^2 / sqrt((sigma_a^2 + tau^2)(sigma_b^2 + tau^2))`` (zero for the paper's model, whose
+  naive-Bayes filter treats views as independent).
 """
 
 from __future__ import annotations
@@ -30,7 +42,7 @@ from scrppl.models.data import CLASS_NAMES, ViewData
 from scrppl.models.marginal import instance_log_marginal
 from scrppl.models.response import ResponseModel, check_response_model, log_prob
 
-__all__ = ["heldout_scores", "evaluate_models"]
+__all__ = ["heldout_scores", "evaluate_models", "sequential_normal_scores", "predictive_checks"]
 
 
 @jax.jit
@@ -134,3 +146,173 @@ def evaluate_models(
                 )
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def sequential_normal_scores(model: ResponseModel, y, observed, category) -> np.ndarray:
+    """Normal scores of the one-step-ahead predictive of each view given the views before it.
+
+    A posterior predictive check of what the instance-aware filter uses: for each instance of true
+    class ``k`` (a binary model's absent/present, or a K-way model's category) and each ring ``(e, s)``, the views are taken in azimuth order; view ``j``'s response is
+    scored by the exact predictive given views ``1 .. j-1`` -- per posterior draw the Kalman predictive of
+    the instance effect (:func:`scrppl.belief.instance_update`), mixed over the draws with weights
+    proportional to their evidence so far -- as its PIT value ``P(F <= f)`` mapped through the standard
+    normal quantile. Under a calibrated model the scores are independent standard normals: their mean
+    square is 1 and ``|z| > 3`` happens 0.27 % of the time.
+
+    Parameters
+    ----------
+    model
+        A ``ResponseModel`` whose class ``k`` is the instances' class ``k``.
+    y, observed
+        Held-out responses ``(I, A, E, S)`` on the model's scale, and their mask.
+    category
+        ``(I,)`` true class index of each instance.
+
+    Returns
+    -------
+    Array ``(I, E, S, A)`` of normal scores (NaN at unobserved views).
+    """
+    from scipy import special, stats
+
+    mu, sd, tau = (np.asarray(x, np.float64) for x in (model.mu, model.sigma, model.tau))
+    y = np.asarray(y, np.float64)
+    observed = np.asarray(observed, bool)
+    category = np.asarray(category, int)
+    n_inst, n_az, n_el, n_sc = y.shape
+    out = np.full((n_inst, n_el, n_sc, n_az), np.nan)
+    m, sd, t2 = mu[:, category], sd[:, category], tau[:, category] ** 2  # (N, I, ...), (N, I)
+    for e in range(n_el):
+        for c in range(n_sc):
+            sw = np.zeros_like(t2)
+            swr = np.zeros_like(t2)
+            log_ev = np.zeros_like(t2)
+            for a in range(n_az):
+                seen = observed[:, a, e, c]  # (I,)
+                r = y[:, a, e, c] - m[:, :, a, e, c]
+                post_var = t2 / (1.0 + t2 * sw)
+                pred_sd = np.sqrt(sd[:, :, a, e, c] ** 2 + post_var)
+                zn = (r - post_var * swr) / pred_sd
+                w = np.exp(log_ev - special.logsumexp(log_ev, axis=0))
+                pit = np.sum(w * stats.norm.cdf(zn), axis=0)
+                score = stats.norm.ppf(np.clip(pit, 1e-12, 1 - 1e-12))
+                out[:, e, c, a] = np.where(seen, score, np.nan)
+                log_ev = log_ev + np.where(seen, stats.norm.logpdf(zn) - np.log(pred_sd), 0.0)
+                sw = sw + np.where(seen, 1.0 / sd[:, :, a, e, c] ** 2, 0.0)
+                swr = swr + np.where(seen, r / sd[:, :, a, e, c] ** 2, 0.0)
+    return out
+
+
+def _pair_correlation(x: np.ndarray, ok: np.ndarray) -> tuple[float, int]:
+    """Pearson correlation of all pairs of distinct observed views within each (instance, ring).
+
+    ``x``, ``ok``: ``(I, R, A)`` values and mask. Returns the correlation over the pooled pairs (both
+    orders, so symmetric) and the number of unordered pairs.
+    """
+    a_vals, b_vals = [], []
+    n_a = x.shape[-1]
+    for a in range(n_a):
+        for b in range(n_a):
+            if a == b:
+                continue
+            both = ok[..., a] & ok[..., b]
+            a_vals.append(x[..., a][both])
+            b_vals.append(x[..., b][both])
+    u, v = np.concatenate(a_vals), np.concatenate(b_vals)
+    if u.size < 3:
+        return float("nan"), 0
+    return float(np.corrcoef(u, v)[0, 1]), int(u.size // 2)
+
+
+def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
+    """Posterior predictive checks of a binary response model on held-out views, per class.
+
+    Parameters
+    ----------
+    model
+        The model the filters use (:attr:`ViewpointModel.response_model`), classes ``(absent,
+        present)``.
+    data
+        Held-out views on the model's scale (:func:`scrppl.models.extract_view_data`, ``split="test"``,
+        with the model's transform).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per class (``absent``, ``present``) with: ``instances``, ``views``; the sequential normal
+        scores' ``mean_square`` (1 if calibrated), ``beyond_3`` (share with ``|z| > 3``; 0.0027),
+        ``kurtosis`` (3) and ``lag1`` (correlation of successive scores on a ring; 0),
+        ``mean_square_min`` / ``mean_square_max`` over the relative azimuths; and the correlation
+        between two views of one instance, ``view_corr_observed`` against ``view_corr_model`` (see the
+        module docstring), with ``view_pairs``.
+    """
+    from scipy import stats
+
+    check_response_model(model)
+    y = np.asarray(data.y, np.float64)
+    observed = np.asarray(data.observed, bool)
+    o = np.asarray(data.o, int)
+    if y.shape[1:] != tuple(model.mu.shape[2:]):
+        raise ValueError(
+            f"held-out views on a grid {y.shape[1:]} (A, E, S), but the model is on {model.mu.shape[2:]}"
+        )
+    if not np.all(np.isfinite(y[observed])):
+        raise ValueError("held-out responses contain NaN or infinite values at observed views")
+    z = sequential_normal_scores(model, y, observed, o)  # (I, E, S, A)
+    mu, sd, tau = (np.asarray(v, np.float64) for v in (model.mu, model.sigma, model.tau))
+    m_bar, var_bar = mu.mean(0), (sd**2).mean(0)  # (O, A, E, S): posterior means
+    t2_bar = (tau**2).mean(0)  # (O,)
+    rows = []
+    for k, name in enumerate(CLASS_NAMES):
+        sel = o == k
+        if not sel.any():
+            continue
+        zk = z[sel]
+        ok_z = np.isfinite(zk)
+        flat = zk[ok_z]
+        per_az = np.array(
+            [
+                np.mean(zk[..., a][ok_z[..., a]] ** 2)
+                for a in range(zk.shape[-1])
+                if ok_z[..., a].any()
+            ]
+        )
+        succ = ok_z[..., 1:] & ok_z[..., :-1]
+        lag1 = (
+            float(np.corrcoef(zk[..., 1:][succ], zk[..., :-1][succ])[0, 1])
+            if succ.sum() > 2
+            else float("nan")
+        )
+        # standardised residuals on rings (I, E, S, A) with the posterior-mean parameters
+        yk = np.moveaxis(y[sel], 1, -1)  # (I, E, S, A)
+        okk = np.moveaxis(observed[sel], 1, -1)
+        mk = np.moveaxis(m_bar[k], 0, -1)  # (E, S, A)
+        vk = np.moveaxis(var_bar[k], 0, -1)
+        total = vk + t2_bar[k]
+        resid = (yk - mk) / np.sqrt(total)
+        n_i = resid.shape[0]
+        x = resid.reshape(n_i, -1, resid.shape[-1])
+        ok = okk.reshape(n_i, -1, resid.shape[-1])
+        corr_obs, pairs = _pair_correlation(x, ok)
+        # the model's own correlation of two views of one instance, averaged over the same pairs
+        tot = total.reshape(-1, total.shape[-1])  # (R, A)
+        implied = t2_bar[k] / np.sqrt(tot[:, :, None] * tot[:, None, :])  # (R, A, A)
+        both = ok[:, :, :, None] & ok[:, :, None, :]
+        both &= ~np.eye(ok.shape[-1], dtype=bool)
+        corr_model = float((implied[None] * both).sum() / max(both.sum(), 1))
+        rows.append(
+            {
+                "class": name,
+                "instances": int(sel.sum()),
+                "views": int(flat.size),
+                "mean_square": float(np.mean(flat**2)),
+                "beyond_3": float(np.mean(np.abs(flat) > 3)),
+                "kurtosis": float(stats.kurtosis(flat, fisher=False)),
+                "lag1": lag1,
+                "mean_square_min": float(per_az.min()),
+                "mean_square_max": float(per_az.max()),
+                "view_corr_observed": corr_obs,
+                "view_corr_model": corr_model,
+                "view_pairs": pairs,
+            }
+        )
+    return pd.DataFrame(rows).set_index("class")
