@@ -14,6 +14,9 @@ $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
 export JAX_PLATFORMS=cpu
 unset MPLBACKEND
 eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
+# JAX's persistent compilation cache under the scrppl cache (SCRPPL_JAX_CACHE=0: none): the pages
+# reuse what the pipeline and the earlier pages compiled (the same bytes, less time)
+eval "$($VENV/bin/python -c 'from scrppl._io import compilation_cache_exports; print(compilation_cache_exports())')"
 name=seed$SEED
 [ "${SCRPPL_NATIVE_CPU:-0}" != 0 ] && name=$name-native
 $VENV/bin/python scripts/book_claims.py --run "$name=$results" --require-all

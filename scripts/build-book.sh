@@ -53,6 +53,9 @@ export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=$
 # The kernels import NumPy before scrppl: hand them the portable numerics of the scrppl commands
 # (scrppl.numerics; nothing with SCRPPL_NATIVE_CPU=1).
 eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
+# JAX's persistent compilation cache under the scrppl cache (SCRPPL_JAX_CACHE=0: none): the pages
+# reuse what the pipeline and the earlier pages compiled (the same bytes, less time)
+eval "$($VENV/bin/python -c 'from scrppl._io import compilation_cache_exports; print(compilation_cache_exports())')"
 # No MPLBACKEND: Jupyter kernels then use the inline backend and show the figures a cell draws.
 unset MPLBACKEND
 rm -rf book/_build/html book/_build/jupyter_execute book/_build/.doctrees

@@ -22,6 +22,10 @@ __all__ = [
     "atomic_path",
     "default_cache_dir",
     "CACHE_ENV",
+    "JAX_CACHE_OFF_ENV",
+    "compilation_cache_env",
+    "compilation_cache_exports",
+    "use_compilation_cache",
     "CorruptFileError",
     "write_netcdf",
     "read_netcdf",
@@ -31,6 +35,10 @@ __all__ = [
 
 #: Environment variable that overrides the default dataset/cache location.
 CACHE_ENV = "SCRPPL_CACHE"
+#: Set to 0 to keep the ``scrppl`` commands from using JAX's persistent compilation cache.
+JAX_CACHE_OFF_ENV = "SCRPPL_JAX_CACHE"
+#: The start of JAX's warning when a cache entry cannot be read (it then compiles the program itself).
+CACHE_READ_WARNING = "Error reading persistent compilation cache entry"
 
 
 def default_cache_dir() -> Path:
@@ -41,6 +49,57 @@ def default_cache_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("scrppl"))
+
+
+def compilation_cache_env() -> dict[str, str]:
+    """The environment that gives JAX a persistent compilation cache under the scrppl cache directory.
+
+    ``<cache>/jax-compilation`` (:func:`default_cache_dir`), every compiled program kept however quick
+    its compilation. A compiled program is stored under a key of its computation, the JAX and XLA
+    versions and the ``XLA_FLAGS`` (:mod:`scrppl.numerics` narrows the CPU features there), and running
+    it from the cache gives the same bytes as compiling it anew; what changes is the time. Empty when
+    ``SCRPPL_JAX_CACHE=0`` or when ``JAX_COMPILATION_CACHE_DIR`` is already set (then it is left alone).
+
+    JAX writes an entry without a lock, so a process that reads it while another is still writing it (two
+    pages of the book executing at once) finds it incomplete, warns and compiles the program itself.
+    ``PYTHONWARNINGS`` gains an entry that ignores exactly that warning (:data:`CACHE_READ_WARNING`):
+    the fallback is correct, only slower, and a warning would fail a book page.
+    """
+    if os.environ.get(JAX_CACHE_OFF_ENV, "") == "0" or "JAX_COMPILATION_CACHE_DIR" in os.environ:
+        return {}
+    ignore = f"ignore:{CACHE_READ_WARNING}"
+    warn = [w for w in os.environ.get("PYTHONWARNINGS", "").split(",") if w]
+    return {
+        "JAX_COMPILATION_CACHE_DIR": str(default_cache_dir() / "jax-compilation"),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
+        "PYTHONWARNINGS": ",".join(warn + ([ignore] if ignore not in warn else [])),
+    }
+
+
+def compilation_cache_exports() -> str:
+    """:func:`compilation_cache_env` as shell ``export`` lines (for the book's build scripts)."""
+    import shlex
+
+    return "\n".join(f"export {k}={shlex.quote(v)}" for k, v in compilation_cache_env().items())
+
+
+def use_compilation_cache() -> bool:
+    """Give this process (and those it starts) :func:`compilation_cache_env`, if JAX has not started.
+
+    JAX reads these variables when it is imported, so in a session that already imported it nothing is
+    changed. Returns whether the cache is in use.
+    """
+    import sys
+    import warnings
+
+    if "jax" in sys.modules:
+        return bool(os.environ.get("JAX_COMPILATION_CACHE_DIR"))
+    env = compilation_cache_env()
+    os.environ.update(env)
+    if env:
+        warnings.filterwarnings("ignore", message=CACHE_READ_WARNING)  # see compilation_cache_env
+    return bool(os.environ.get("JAX_COMPILATION_CACHE_DIR"))
 
 
 @contextlib.contextmanager

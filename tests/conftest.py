@@ -7,6 +7,9 @@
 * Portable numerics (:mod:`scrppl.numerics`): ``import scrppl`` comes before NumPy and JAX.
 * Warnings are errors (``filterwarnings = error`` in pyproject.toml); narrow exceptions are listed
   there with a comment.
+* No persistent JAX compilation cache (``SCRPPL_JAX_CACHE=0``, also for the ``scrppl`` commands tests
+  start): every test compiles what it runs, as on a fresh machine (tests/test_compilation_cache.py turns
+  it on where it is the subject).
 """
 
 import os
@@ -14,6 +17,7 @@ import os
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("SCRPPL_JAX_CACHE", "0")
 
 # The portable numerics of every scrppl process (scrppl.numerics), before NumPy loads: the suite then
 # computes the same bytes on every x86-64 machine with AVX2.

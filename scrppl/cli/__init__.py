@@ -49,6 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``scrppl`` command; returns the process exit status."""
+    from scrppl._io import use_compilation_cache
+
+    # compiled programs are kept on disk and reused by later commands (SCRPPL_JAX_CACHE=0: not)
+    use_compilation_cache()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.version:
