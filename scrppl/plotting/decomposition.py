@@ -134,7 +134,7 @@ def plot_decomposition(
         title
         or (
             "Views saved against random, and the room hindsight would have"
-            + (f" ({trials} paired trials per target, 95% intervals)" if trials else "")
+            + (f" ({trials:,} paired trials per target, 95% intervals)" if trials else "")
         ),
         fontsize=10,
     )
