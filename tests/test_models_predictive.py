@@ -84,6 +84,29 @@ def test_to_response_model_folds_the_category_variance(rng):
     np.testing.assert_allclose(thin.mu[-1], model.mu[-1])
 
 
+def test_negatives_forecast_from_an_unseen_a_fitted_or_the_mean_category(rng):
+    """negatives='unseen' / 'fitted' / 'mean': tau_0^2 plus kappa^2 times the variance, about the mean of
+    K fitted category effects, of a new category's effect / of a fitted one drawn at random / of none,
+    here checked by simulating the effects (K = 3, as in the fixture)."""
+    tree, post = _posterior(rng)
+    tau, kappa = post["tau"].reshape(100, 2), post["kappa"].reshape(100)
+    effects = rng.normal(size=(200_000, 4))  # 3 fitted categories and a new one, kappa = 1
+    dev = effects[:, :3] - effects[:, :3].mean(1, keepdims=True)
+    spread = {
+        "unseen": np.var(effects[:, 3] - effects[:, :3].mean(1)),
+        "fitted": np.mean(dev[np.arange(len(dev)), rng.integers(0, 3, len(dev))] ** 2),
+        "mean": 0.0,
+    }
+    for negatives, var in spread.items():
+        got = to_response_model(tree, negatives=negatives).tau
+        np.testing.assert_allclose(got[:, 1], tau[:, 1], rtol=1e-6)
+        np.testing.assert_allclose(got[:, 0], np.sqrt(tau[:, 0] ** 2 + kappa**2 * var), rtol=0.01)
+    default = to_response_model(tree).tau
+    np.testing.assert_array_equal(default, to_response_model(tree, negatives="unseen").tau)
+    with pytest.raises(ValueError, match="negatives must be one of"):
+        to_response_model(tree, negatives="new")
+
+
 def test_log_prob_equals_quadrature_over_the_instance_effect(rng):
     tree, _ = _posterior(rng, chains=1, draws=3)
     model = to_response_model(tree)
