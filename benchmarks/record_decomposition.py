@@ -10,10 +10,13 @@ that record (a recorded file: its claims hold on every machine). Made with::
         --rows random,greedy_joint,confident,clairvoyant
     scrppl decompose --profile full --out RESULTS --trials 2000 \\
         --rows random,greedy_joint,confident,clairvoyant --model-world
-    python benchmarks/record_decomposition.py RESULTS
+    scrppl decompose --profile full --out ORACLE --trials 2000 \\
+        --rows random,greedy_joint,confident,oracle_random,oracle,clairvoyant --oracle
+    python benchmarks/record_decomposition.py RESULTS --oracle-from ORACLE
 
-Run: ``python benchmarks/record_decomposition.py RESULTS [--world-from DIR]`` (``--world-from``: the
-folder of ``decomposition-model-world.json`` when it is not ``RESULTS``).
+Run: ``python benchmarks/record_decomposition.py RESULTS [--world-from DIR] [--oracle-from DIR]``
+(``--world-from``: the folder of ``decomposition-model-world.json`` when it is not ``RESULTS``;
+``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept as ``oracle``).
 """
 
 from __future__ import annotations
@@ -45,6 +48,10 @@ def main(argv=None) -> None:
     ap.add_argument("results", type=Path, help="a results folder holding decomposition.json")
     ap.add_argument("--world-from", type=Path, default=None,
                     help="folder of decomposition-model-world.json (default: RESULTS)")  # fmt: skip
+    ap.add_argument(
+        "--oracle-from", type=Path, default=None,
+        help="folder of a decomposition.json run with --oracle (default: none)",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
     real = _read(args.results / "decomposition.json")
@@ -53,6 +60,11 @@ def main(argv=None) -> None:
     if world is not None and world["seed"] != real["seed"]:
         raise SystemExit(
             f"{world_path}: seed {world['seed']} differs from the real run's {real['seed']}"
+        )
+    oracle = _read(args.oracle_from / "decomposition.json") if args.oracle_from else None
+    if oracle is not None and "oracle" not in oracle["settings"].get("rows", []):
+        raise SystemExit(
+            f"{args.oracle_from / 'decomposition.json'}: has no oracle rows (run with --oracle)"
         )
     record = {
         "what": (
@@ -67,6 +79,7 @@ def main(argv=None) -> None:
         "machine": machine_description(),
         "real": real,
         "model_world": world,
+        "oracle": oracle,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

@@ -532,7 +532,10 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     mod.main([str(tmp_path), "--out", str(out)])
     record = json.loads(out.read_text())
     assert record["real"] == json.loads((tmp_path / "decomposition.json").read_text())
-    assert record["model_world"] is None and record["machine"]["cores"] >= 1
+    assert record["model_world"] is None and record["oracle"] is None
+    assert record["machine"]["cores"] >= 1
+    with pytest.raises(SystemExit, match="has no oracle rows"):
+        mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):
         mod.main([str(tmp_path / "nowhere"), "--out", str(out)])
     (tmp_path / "decomposition.json").write_text("{not json")
