@@ -143,7 +143,8 @@ def main(argv=None) -> None:
     ap.add_argument("--trials", type=int, default=4000, help="paired trials per target")
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
-    from scrppl.pipeline import machine_description
+    from _record import update_record
+
     from scrppl.responses import load_response_table
 
     run = json.loads((args.results / "run.json").read_text())
@@ -161,25 +162,19 @@ def main(argv=None) -> None:
         mean = held.groupby("negatives", sort=False).mean(numeric_only=True)
         print(mean.round(4).to_string())
         print(exp.round(3).to_string(index=False))
-    record = json.loads(args.out.read_text()) if args.out.exists() else {}
     key = f"{run.get('profile', '?')}/{args.detector}"
-    record[key] = {
+    entry = {
         "what": "the hierarchical model's forecast for new negatives from an unseen category (the "
         "default), a fitted one at random, or the mean category: held-out negatives and the experiment",
         "command": f"python benchmarks/bench_negative_widening.py RESULTS --detector {args.detector} "
         f"--trials {args.trials}",
-        "run": {k: run.get(k) for k in ("profile", "seed", "preset")},
-        "machine": machine_description(),
         "seconds": {"heldout": round(t1 - t0, 1), "experiment": round(t2 - t1, 1)},
         "trials": args.trials,
         "heldout_mean_over_targets": json.loads(mean.to_json(orient="index")),
         "heldout": json.loads(held.to_json(orient="records")),
         "experiment": json.loads(exp.to_json(orient="records")),
     }
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(record, indent=1) + "\n")
-    tmp.replace(args.out)
-    print(f"wrote {args.out} [{key}]")
+    update_record(args.out, key, entry, run)
 
 
 if __name__ == "__main__":

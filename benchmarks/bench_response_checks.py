@@ -61,7 +61,7 @@ def main(argv=None) -> None:
     ap.add_argument("--draws", type=int, default=64, help="posterior draws kept per fit")
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
-    from scrppl.pipeline import machine_description
+    from _record import update_record
 
     run = json.loads((args.results / "run.json").read_text())
     t0 = time.perf_counter()
@@ -77,15 +77,12 @@ def main(argv=None) -> None:
         .round(4)
     )
     print(summary.to_string())
-    record = json.loads(args.out.read_text()) if args.out.exists() else {}
     key = f"{run.get('profile', '?')}/{args.detector}"
-    record[key] = {
+    entry = {
         "what": "posterior predictive checks of the binary response models on the held-out views "
         "(scrppl.models.predictive_checks), per target, model kind and class",
         "command": f"python benchmarks/bench_response_checks.py RESULTS --detector {args.detector} "
         f"--draws {args.draws}",
-        "run": {k: run.get(k) for k in ("profile", "seed", "preset")},
-        "machine": machine_description(),
         "seconds": round(seconds, 1),
         "calibrated": {"mean_square": 1.0, "beyond_3": 0.0027, "kurtosis": 3.0, "lag1": 0.0},
         "mean_over_targets": {
@@ -93,10 +90,7 @@ def main(argv=None) -> None:
         },
         "rows": json.loads(frame.to_json(orient="records")),
     }
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(record, indent=1) + "\n")
-    tmp.replace(args.out)
-    print(f"wrote {args.out} [{key}]")
+    update_record(args.out, key, entry, run)
 
 
 if __name__ == "__main__":

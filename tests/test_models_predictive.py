@@ -190,7 +190,10 @@ def test_a_fit_of_another_model_version_is_refused(tmp_path, rng):
     tree.attrs["meta"] = json.dumps(meta)
     save_posterior(model_path(tmp_path, "hierarchical", "dpm", "car"), tree)
     assert not is_current_version(tree)
-    with pytest.raises(ValueError, match=rf"hierarchical-dpm-car.nc was fitted by version {MODEL_VERSION - 1}.*refit"):
+    with pytest.raises(
+        ValueError,
+        match=rf"hierarchical-dpm-car.nc was fitted by version {MODEL_VERSION - 1}.*refit",
+    ):
         load_response_model(tmp_path, "hierarchical", "dpm", "car")
 
 
@@ -416,6 +419,11 @@ def test_predictive_checks_pass_the_true_model_and_catch_what_each_reading_ignor
 
     with pytest.raises(ValueError, match="grid"):
         predictive_checks(ResponseModel(mu[:, :, :4], sd[:, :, :4], jnp.asarray(tau)), data)
+    kway = ResponseModel(
+        jnp.asarray(mu[:, [0, 1, 1]]), jnp.asarray(sd[:, [0, 1, 1]]), jnp.ones((1, 3))
+    )
+    with pytest.raises(ValueError, match="binary model"):
+        predictive_checks(kway, data)
     bad = data._replace(y=np.where(observed, np.nan, 0.0))
     with pytest.raises(ValueError, match="NaN"):
         predictive_checks(truth, bad)

@@ -152,8 +152,9 @@ def sequential_normal_scores(model: ResponseModel, y, observed, category) -> np.
     """Normal scores of the one-step-ahead predictive of each view given the views before it.
 
     A posterior predictive check of what the instance-aware filter uses: for each instance of true
-    class ``k`` (a binary model's absent/present, or a K-way model's category) and each ring ``(e, s)``, the views are taken in azimuth order; view ``j``'s response is
-    scored by the exact predictive given views ``1 .. j-1`` -- per posterior draw the Kalman predictive of
+    class ``k`` (a binary model's absent/present, or a K-way model's category) and each ring
+    ``(e, s)``, the views are taken in azimuth order; view ``j``'s response is scored by the exact
+    predictive given views ``1 .. j-1`` -- per posterior draw the Kalman predictive of
     the instance effect (:func:`scrppl.belief.instance_update`), mixed over the draws with weights
     proportional to their evidence so far -- as its PIT value ``P(F <= f)`` mapped through the standard
     normal quantile. Under a calibrated model the scores are independent standard normals: their mean
@@ -248,6 +249,11 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
     from scipy import stats
 
     check_response_model(model)
+    if model.mu.shape[1] != len(CLASS_NAMES):
+        raise ValueError(
+            f"predictive_checks takes a binary model (classes {CLASS_NAMES}), got {model.mu.shape[1]} "
+            "classes: for a K-way model score its views with sequential_normal_scores"
+        )
     y = np.asarray(data.y, np.float64)
     observed = np.asarray(data.observed, bool)
     o = np.asarray(data.o, int)
