@@ -49,7 +49,10 @@ INSPECT = """(async () => {
   if (w.MathJax && w.MathJax.startup && w.MathJax.startup.promise) {
     try { await w.MathJax.startup.promise; } catch (e) {}
     await new Promise(r => setTimeout(r, 500));
-  } else { await new Promise(r => setTimeout(r, 3000)); }
+  } else {  // no MathJax: the load event has fired (images in); wait for the fonts, then a moment
+    try { await document.fonts.ready; } catch (e) {}
+    await new Promise(r => setTimeout(r, 300));
+  }
   const d = document;
   const main = d.querySelector("main") || d.body;
   const imgs = Array.from(main.querySelectorAll("img"));

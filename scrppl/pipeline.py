@@ -6,8 +6,8 @@ each stage is a list of ``scrppl`` command lines, so the runner takes the functi
 
 * :class:`Stage` -- one step: command lines, inputs, outputs;
 * :func:`is_current` -- whether a stage's outputs are newer than its inputs (then it is skipped);
-* :func:`stages` -- dataset, detect, fit, simulate, kway, sweep (and decompose in the full profile) for one
-  dataset folder, output folder, seed and profile;
+* :func:`stages` -- dataset, detect, fit, simulate, kway, sweep (not in the book profile) and decompose (the
+  full profile only) for one dataset folder, output folder, seed and profile;
 * :func:`uses_existing_dataset` -- whether the dataset folder is used as it is rather than generated;
 * :func:`run_stages` -- run the stages that are not current;
 * :func:`failed_fits` -- the hierarchical fits that failed their diagnostics (``diagnostics.json``).
@@ -27,12 +27,16 @@ from scrppl._io import read_json
 __all__ = [
     "Stage",
     "DECOMPOSE_ROWS",
+    "NO_SWEEP_PROFILES",
     "is_current",
     "stages",
     "uses_existing_dataset",
     "run_stages",
     "failed_fits",
 ]
+
+#: Profiles whose pipeline has no sweep stage (``scrppl sweep --profile book`` still runs it on its own).
+NO_SWEEP_PROFILES = ("book",)
 
 #: The rows of the full run's decomposition stage (``scrppl decompose --rows``).
 DECOMPOSE_ROWS = ("random", "greedy_joint", "confident", "clairvoyant")
@@ -80,7 +84,9 @@ def stages(
 ) -> list[Stage]:
     """The pipeline in order: dataset, detect, fit, simulate, kway, sweep and (full profile) decompose.
 
-    The sweep (``scrppl sweep``) renders new images, so it runs only for a generated synthetic dataset.
+    The sweep (``scrppl sweep``) renders new images, so it runs only for a generated synthetic dataset,
+    and not in the profiles of :data:`NO_SWEEP_PROFILES` (the book's, whose time it would
+    increase by about two thirds).
     The decomposition (``scrppl decompose``, rows :data:`DECOMPOSE_ROWS`) runs in the full profile.
 
     Parameters
@@ -214,7 +220,10 @@ def stages(
             takes_force=True,
         ),
     ]
-    if not existing:  # the sweep renders new images of a synthetic dataset
+    # the sweep renders new images of a synthetic dataset; the book profile leaves it out (it would add
+    # about two thirds to that run's time), and ch. 9 reads the one recorded from it
+    # (benchmarks/results/sweep-book.nc, benchmarks/record_sweep.py) when the run has none
+    if not existing and profile not in NO_SWEEP_PROFILES:
         pipeline.append(
             Stage(
                 "sweep",

@@ -504,9 +504,16 @@ def _section_kway(out: Path) -> str:
     return msg or kway_markdown(summ)
 
 
-def _section_sweep(out: Path) -> str:
+def _section_sweep(out: Path, profile: str) -> str:
     """The difficulty sweep (``scrppl sweep``): one row per (level, family, target)."""
     title = "When does looking pay off? The difficulty sweep"
+    from scrppl.pipeline import NO_SWEEP_PROFILES
+
+    if profile in NO_SWEEP_PROFILES and not (out / "sweep-summary.json").exists():
+        return (
+            f"## {title}\n\n_Not run in the {profile} profile (it would add about two thirds to the "
+            f"run's time): `scrppl sweep --profile {profile} --out {out.name}` writes it._\n"
+        )
     summ, msg = _load_json(out, "sweep-summary.json", title)
     if msg:
         return msg
@@ -883,7 +890,7 @@ def write_report(
         _section_heldout(out),
         _section_experiment(out),
         _section_kway(out),
-        _section_sweep(out),
+        _section_sweep(out, profile),
         _section_decomposition(out, profile),
         _section_figures(out),
     ]

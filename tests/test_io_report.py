@@ -489,6 +489,36 @@ def test_report_sweep_section_has_one_row_per_point(tmp_path):
     assert "2 of 3 fits pass every diagnostic gate." in sweep and "10000 paired trials" in sweep
 
 
+def test_the_book_profile_has_no_sweep_stage_and_its_report_says_how_to_run_it(tmp_path):
+    """The sweep would add about two thirds to the book profile's run: that profile leaves it out (ch. 9 reads
+    a recorded one) and its report names the command; the other profiles keep the stage."""
+    names = {
+        profile: [
+            s.name
+            for s in stages(
+                argparse.Namespace(
+                    root=tmp_path / "data",
+                    out=tmp_path / "out",
+                    seed=0,
+                    profile=profile,
+                    strict=True,
+                )
+            )
+        ]
+        for profile in ("quick", "book", "full")
+    }
+    assert names["book"] == ["dataset", "detect", "fit", "simulate", "kway"]
+    assert "sweep" in names["quick"] and "sweep" in names["full"]
+    out = tmp_path / "run"
+    _fake_run(out)
+    book = write_report(out, profile="book").read_text()
+    section = book.split("## When does looking pay off? The difficulty sweep")[1].split("\n## ")[0]
+    assert "Not run in the book profile" in section
+    assert "`scrppl sweep --profile book --out run` writes it" in section
+    full = write_report(out, profile="full").read_text()
+    assert "_Not available: `sweep-summary.json` is missing._" in full
+
+
 def _decomposition_entry(random, confident, clairvoyant, interval):
     """One method's rows as summarise_decomposition writes them."""
 

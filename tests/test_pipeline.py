@@ -145,7 +145,7 @@ def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tm
     from scrppl.pipeline import is_current, stages
     from scrppl.sim.sweep import SweepSettings
 
-    want = PROFILE_SETTINGS["book"]
+    want = PROFILE_SETTINGS["quick"]  # the book profile has no sweep stage
     settings = SweepSettings(
         n_trials=want["trials"], num_warmup=want["warmup"], num_samples=want["draws"],
         num_chains=want["chains"], n_samples=want["n_samples"], max_draws=want["max_draws"],
@@ -169,23 +169,23 @@ def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tm
         summary.write_text(json.dumps(made))
 
     sweep = next(
-        s for s in stages(tmp_path / "data", out, seed=0, profile="book") if s.name == "sweep"
+        s for s in stages(tmp_path / "data", out, seed=0, profile="quick") if s.name == "sweep"
     )
     write()
-    assert made_with_profile(summary, "book") and is_current(sweep)
+    assert made_with_profile(summary, "quick") and is_current(sweep)
     assert not made_with_profile(summary, "full")  # the full profile has other levels and trials
     for change in (
         {"levels": [0.0, 1.0, 1.4, 2.0]},
-        {"families": ["dpm"]},
+        {"families": ["sift", "dpm"]},
         {"n_trials": want["trials"] * 5},
         {"num_samples": want["draws"] // 2},
-        {"num_chains": 2},
+        {"num_chains": want["chains"] + 2},
     ):
         write(**change)
-        assert not made_with_profile(summary, "book"), change
+        assert not made_with_profile(summary, "quick"), change
         assert not is_current(sweep), change
     summary.write_text("{not json")
-    assert not made_with_profile(summary, "book")
+    assert not made_with_profile(summary, "quick")
     summary.unlink()
-    assert not made_with_profile(summary, "book")
+    assert not made_with_profile(summary, "quick")
     assert not made_with_profile(out / "sweep-summary.json", "no-such-profile")

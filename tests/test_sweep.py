@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -337,3 +338,56 @@ def test_sweep_command_end_to_end_and_resumes(tmp_path, monkeypatch):
         monkeypatch.setattr(f"{module}.MODEL_VERSION", 10**6)
     assert main(argv) == 0
     assert json.loads((run / "sweep-summary.json").read_text())["points_computed"] == 2
+
+
+RECORDS = Path(__file__).parents[1] / "benchmarks" / "results"
+
+
+def test_the_recorded_book_sweep_is_the_profiles_and_one_sweep(tmp_path):
+    """Ch. 9 reads benchmarks/results/sweep-book.nc when the run has no sweep (the book profile has no
+    sweep stage): it must have been made with the book profile's current settings (a sweep sized anew is
+    recorded anew), and the figure's file and the recorded summary must be the same sweep."""
+    from scrppl.cli.sweep import made_with_profile
+
+    record = json.loads((RECORDS / "sweep-book.json").read_text())
+    summary = tmp_path / "sweep-summary.json"
+    summary.write_text(json.dumps(record["summary"]))
+    assert made_with_profile(summary, "book")
+    # ch. 9 compares the sweep's time with the rest of the run's stages
+    assert set(record["run_timings"]) >= {"dataset", "detect", "fit", "simulate", "kway", "sweep"}
+    sweep = xr.load_dataset(RECORDS / "sweep-book.nc")
+    assert sweep["level"].values.tolist() == record["summary"]["levels"]
+    n = 0
+    for level, points in record["summary"]["points"].items():
+        lv = float(level.removeprefix("level-").replace("p", "."))
+        for name, point in points.items():
+            family, target = name.split("/")
+            here = sweep.sel(level=lv, family=family, target=target)
+            assert float(here["views_saved"]) == pytest.approx(point["views_saved"], abs=1e-3)
+            assert float(here["ap"]) == pytest.approx(point["ap"], abs=1e-3)
+            n += 1
+    assert n == sweep.sizes["level"] * sweep.sizes["family"] * sweep.sizes["target"]
+
+
+def test_record_sweep_refuses_a_sweep_of_other_settings_and_names_a_missing_file(tmp_path):
+    """benchmarks/record_sweep.py records only a sweep made with the book profile's settings."""
+    import importlib.util
+
+    script = Path(__file__).parents[1] / "benchmarks" / "record_sweep.py"
+    spec = importlib.util.spec_from_file_location("record_sweep", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    run = tmp_path / "run"
+    run.mkdir()
+    with pytest.raises(SystemExit, match="sweep-summary.json: not found"):
+        mod.main([str(run), "--out-dir", str(tmp_path / "rec")])
+    summary = json.loads((RECORDS / "sweep-book.json").read_text())["summary"]
+    (run / "sweep-summary.json").write_text(json.dumps(summary))
+    (run / "sweep.nc").write_bytes((RECORDS / "sweep-book.nc").read_bytes())
+    mod.main([str(run), "--out-dir", str(tmp_path / "rec")])
+    assert (tmp_path / "rec" / "sweep-book.nc").read_bytes() == (run / "sweep.nc").read_bytes()
+    assert json.loads((tmp_path / "rec" / "sweep-book.json").read_text())["summary"] == summary
+    summary["settings"]["n_trials"] = 500
+    (run / "sweep-summary.json").write_text(json.dumps(summary))
+    with pytest.raises(SystemExit, match="not made with the book profile's current sweep settings"):
+        mod.main([str(run), "--out-dir", str(tmp_path / "rec2")])
