@@ -3,14 +3,12 @@
 #
 # 1. Results: run (or resume) the small `book` profile of `scrppl reproduce` into results-book/, or use the
 #    run folder named by $SCRPPL_RESULTS (`make book RESULTS=results` for a full run). Chapters read the
-#    chosen folder through $SCRPPL_RESULTS and say on each page which run they show. Meanwhile the exercise
-#    pages, which need no run folder, execute in one more process (scripts/pre_execute.py).
+#    chosen folder through $SCRPPL_RESULTS and say on each page which run they show.
 # 2. MathJax 3 from the npm registry into book/_build/.mathjax (not committed; reused when present).
-# 3. jupyter-book build: every chapter executed (the exercise pages' outputs come from step 1), warnings
-#    (and stderr output of any cell) are errors. It also generates the API reference from the docstrings
-#    (book/_ext/scrppl_api.py) and puts each notebook page's .ipynb and each exercise page's student copy
-#    (scripts/make_student.py, the code of `make student`) in the HTML output's _sources/, offered by the
-#    pages' download menus (book/_ext/scrppl_downloads.py).
+# 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors. It also
+#    generates the API reference from the docstrings (book/_ext/scrppl_api.py) and puts each notebook page's
+#    .ipynb and each exercise page's student copy (scripts/make_student.py, the code of `make student`) in
+#    the HTML output's _sources/, offered by the pages' download menus (book/_ext/scrppl_downloads.py).
 # 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets, the download
 #    links serve notebooks; screenshots.
 # Timings go to book/_build/timings.json.
@@ -20,21 +18,6 @@ cd "$(dirname "$0")/.."
 VENV=.venv
 SEED=${SEED:-0}
 t_start=$(date +%s)
-
-# The exercise pages need no run folder: execute them now, beside the pipeline, on the core it leaves
-# idle (scripts/pre_execute.py), into a jupyter-cache emptied here, so that it only ever holds this build's
-# pages; the build below takes their outputs from it (book/_ext/scrppl_preexecuted.py).
-PRE=book/_build/.preexecuted
-rm -rf "$PRE" && mkdir -p "$PRE"
-(
-  export JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
-  eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
-  eval "$($VENV/bin/python -c 'from scrppl._io import compilation_cache_exports; print(compilation_cache_exports())')"
-  unset MPLBACKEND
-  exec $VENV/bin/python scripts/pre_execute.py --cache "$PRE" --times "$PRE/pages.json" book/exercises/[0-9]*.md
-) > book/_build/pre-execute.log 2>&1 &
-pre_pid=$!
-trap 'kill $pre_pid 2>/dev/null || true' EXIT
 
 if [ -n "${SCRPPL_RESULTS:-}" ]; then
   results=$SCRPPL_RESULTS
@@ -51,13 +34,6 @@ else
   $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
 fi
 t_results=$(date +%s)
-if ! wait $pre_pid; then
-  tail -40 book/_build/pre-execute.log >&2
-  echo "[book] an exercise page failed to execute (book/_build/pre-execute.log)" >&2
-  exit 1
-fi
-t_pre=$(date +%s)
-echo "[book] exercise pages executed beside the pipeline ($(grep -c '^\[pre-execute\]' book/_build/pre-execute.log) pages; waited $((t_pre - t_results)) s for them)"
 
 # Every chapter shows more code than it hides (hidden cells only glue, format and assert).
 $VENV/bin/python scripts/book_code_balance.py --check
@@ -74,7 +50,6 @@ fi
 # JAX on the 2-core CI machines: no accelerators, quiet.
 # Notebooks execute in their own folders: hand them an absolute path.
 export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
-export SCRPPL_BOOK_PREEXECUTED=$(cd "$PRE" && pwd)
 # The kernels import NumPy before scrppl: hand them the portable numerics of the scrppl commands
 # (scrppl.numerics; nothing with SCRPPL_NATIVE_CPU=1).
 eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
@@ -90,23 +65,18 @@ $VENV/bin/python scripts/jupyter_book_build.py build -W -n --keep-going book/ 2>
 t_build=$(date +%s)
 $VENV/bin/python scripts/check_book.py --html book/_build/html --toc book/_toc.yml
 t_end=$(date +%s)
-$VENV/bin/python - "$results" $((t_results - t_start)) $((t_build - t_build0)) $((t_end - t_build)) $((t_end - t_start)) $((t_pre - t_results)) <<'PY'
+$VENV/bin/python - "$results" $((t_results - t_start)) $((t_build - t_build0)) $((t_end - t_build)) $((t_end - t_start)) <<'PY'
 import json, sys
 from pathlib import Path
-results, t_res, t_build, t_check, total, t_wait = sys.argv[1], *map(int, sys.argv[2:])
+results, t_res, t_build, t_check, total = sys.argv[1], *map(int, sys.argv[2:])
 import re
 pages = {}
 for line in Path("book/_build/jupyter-book.log").read_text(errors="replace").splitlines():
     m = re.search(r"book/(\S+)\.md: Executed notebook in ([0-9.]+) seconds", line)
     if m:
         pages[m.group(1)] = float(m.group(2))
-# the exercise pages ran beside the pipeline (scripts/pre_execute.py): their own times
-pre = json.loads(Path("book/_build/.preexecuted/pages.json").read_text())
-pages.update(pre)
 Path("book/_build/timings.json").write_text(json.dumps(
-    {"results": results, "results_s": t_res, "pre_execute_wait_s": t_wait, "build_s": t_build,
-     "check_s": t_check, "total_s": total, "executed_pages_s": pages,
-     "executed_beside_the_pipeline": sorted(pre)}, indent=2) + "\n")
-print(f"[book] done in {total} s (results {t_res} s, waiting for the exercise pages {t_wait} s, "
-      f"build {t_build} s, page check {t_check} s)")
+    {"results": results, "results_s": t_res, "build_s": t_build, "check_s": t_check, "total_s": total,
+     "executed_pages_s": pages}, indent=2) + "\n")
+print(f"[book] done in {total} s (results {t_res} s, build {t_build} s, page check {t_check} s)")
 PY
