@@ -145,10 +145,17 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     from _record import update_record
 
+    from scrppl._io import read_json
     from scrppl.responses import load_response_table
 
-    run = json.loads((args.results / "run.json").read_text())
-    summary = json.loads((args.results / "simulate-summary.json").read_text())
+    run = read_json(
+        args.results / "run.json", "run record", remedy="pass a folder written by scrppl reproduce"
+    )
+    summary = read_json(
+        args.results / "simulate-summary.json",
+        "experiment summary",
+        remedy="run scrppl simulate first",
+    )
     settings = dict(summary["settings"], targets=list(summary["targets"]))
     table = load_response_table(args.results / "responses.nc")
     t0 = time.perf_counter()

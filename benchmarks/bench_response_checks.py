@@ -63,7 +63,11 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     from _record import update_record
 
-    run = json.loads((args.results / "run.json").read_text())
+    from scrppl._io import read_json
+
+    run = read_json(
+        args.results / "run.json", "run record", remedy="pass a folder written by scrppl reproduce"
+    )
     t0 = time.perf_counter()
     frame = check_run(args.results, args.detector, args.draws)
     seconds = time.perf_counter() - t0
