@@ -3,12 +3,15 @@
 #
 # 1. Results: run (or resume) the small `book` profile of `scrppl reproduce` into results-book/, or use the
 #    run folder named by $SCRPPL_RESULTS (`make book RESULTS=results` for a full run). Chapters read the
-#    chosen folder through $SCRPPL_RESULTS and say on each page which run they show.
+#    chosen folder through $SCRPPL_RESULTS and say on each page which run they show. Meanwhile the exercise
+#    pages, which need no run folder, execute at the lowest CPU priority on what the pipeline leaves idle
+#    (scripts/pre_execute.py); those not done when the run ends are left to step 3.
 # 2. MathJax 3 from the npm registry into book/_build/.mathjax (not committed; reused when present).
-# 3. jupyter-book build: every chapter executed, warnings (and stderr output of any cell) are errors. It also
-#    generates the API reference from the docstrings (book/_ext/scrppl_api.py) and puts each notebook page's
-#    .ipynb and each exercise page's student copy (scripts/make_student.py, the code of `make student`) in
-#    the HTML output's _sources/, offered by the pages' download menus (book/_ext/scrppl_downloads.py).
+# 3. jupyter-book build: every page executed (those step 1 finished are read from its cache), warnings (and
+#    stderr output of any cell) are errors. It also generates the API reference from the docstrings
+#    (book/_ext/scrppl_api.py) and puts each notebook page's .ipynb and each exercise page's student copy
+#    (scripts/make_student.py, the code of `make student`) in the HTML output's _sources/, offered by the
+#    pages' download menus (book/_ext/scrppl_downloads.py).
 # 4. scripts/check_book.py: titles, figures, typeset math, no error output, no remote assets, the download
 #    links serve notebooks; screenshots.
 # Timings go to book/_build/timings.json.
@@ -18,6 +21,26 @@ cd "$(dirname "$0")/.."
 VENV=.venv
 SEED=${SEED:-0}
 t_start=$(date +%s)
+
+# The exercise pages need no run folder: execute them now, beside the pipeline, with `nice -n 19` so that
+# they only take the CPU time it leaves idle (scripts/pre_execute.py), into a jupyter-cache emptied here, so
+# that it only ever holds this build's pages; the build below takes their outputs from it
+# (book/_ext/scrppl_preexecuted.py). SCRPPL_BOOK_PRE=0: no pre-execution.
+PRE=book/_build/.preexecuted
+rm -rf "$PRE" && mkdir -p "$PRE"
+pre_pid=
+if [ "${SCRPPL_BOOK_PRE:-1}" != 0 ]; then
+  (
+    export JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
+    eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
+    eval "$($VENV/bin/python -c 'from scrppl._io import compilation_cache_exports; print(compilation_cache_exports())')"
+    unset MPLBACKEND
+    exec nice -n 19 $VENV/bin/python scripts/pre_execute.py --cache "$PRE" --times "$PRE/pages.json" \
+      book/exercises/[0-9]*.md
+  ) > book/_build/pre-execute.log 2>&1 &
+  pre_pid=$!
+  trap '[ -n "$pre_pid" ] && kill -USR1 $pre_pid 2>/dev/null || true' EXIT
+fi
 
 if [ -n "${SCRPPL_RESULTS:-}" ]; then
   results=$SCRPPL_RESULTS
@@ -34,6 +57,13 @@ else
   $VENV/bin/scrppl reproduce --profile book --seed "$SEED" --out "$results"
 fi
 t_results=$(date +%s)
+if [ -n "$pre_pid" ]; then
+  # stop the pre-execution (a page being cached is finished first; one being executed is left to the build)
+  kill -USR1 $pre_pid 2>/dev/null || true
+  wait $pre_pid 2>/dev/null || true
+  pre_pid=
+  echo "[book] exercise pages executed beside the pipeline: $($VENV/bin/python -c 'import json, sys; print(len(json.load(open(sys.argv[1]))))' "$PRE/pages.json" 2>/dev/null || echo 0) (book/_build/pre-execute.log)"
+fi
 
 # Every chapter shows more code than it hides (hidden cells only glue, format and assert).
 $VENV/bin/python scripts/book_code_balance.py --check
@@ -50,6 +80,7 @@ fi
 # JAX on the 2-core CI machines: no accelerators, quiet.
 # Notebooks execute in their own folders: hand them an absolute path.
 export SCRPPL_RESULTS=$(cd "$results" && pwd) JAX_PLATFORMS=cpu PYTHONWARNINGS=${PYTHONWARNINGS:-}
+export SCRPPL_BOOK_PREEXECUTED=$(cd "$PRE" && pwd)
 # The kernels import NumPy before scrppl: hand them the portable numerics of the scrppl commands
 # (scrppl.numerics; nothing with SCRPPL_NATIVE_CPU=1).
 eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
@@ -75,8 +106,12 @@ for line in Path("book/_build/jupyter-book.log").read_text(errors="replace").spl
     m = re.search(r"book/(\S+)\.md: Executed notebook in ([0-9.]+) seconds", line)
     if m:
         pages[m.group(1)] = float(m.group(2))
+# the exercise pages executed beside the pipeline (scripts/pre_execute.py): their own times
+pre_file = Path("book/_build/.preexecuted/pages.json")
+pre = json.loads(pre_file.read_text()) if pre_file.exists() else {}
+pages.update(pre)
 Path("book/_build/timings.json").write_text(json.dumps(
     {"results": results, "results_s": t_res, "build_s": t_build, "check_s": t_check, "total_s": total,
-     "executed_pages_s": pages}, indent=2) + "\n")
+     "executed_pages_s": pages, "executed_beside_the_pipeline": sorted(pre)}, indent=2) + "\n")
 print(f"[book] done in {total} s (results {t_res} s, build {t_build} s, page check {t_check} s)")
 PY

@@ -68,7 +68,10 @@ def test_claims_are_recorded_not_raised(tmp_path):
         "assert x == 3",
     ]
     assert found[0]["id"] != found[3]["id"]  # the same text twice: two claims
-    assert found[1]["line"] == PAGE.splitlines().index("    assert v < 2, \"fails for the second value\"") + 1
+    assert (
+        found[1]["line"]
+        == PAGE.splitlines().index('    assert v < 2, "fails for the second value"') + 1
+    )
     run = tmp_path / "run"
     run.mkdir()
     rows = claims.run_page(nb, found, run, tmp_path / "log.jsonl", timeout=60)
@@ -114,8 +117,10 @@ def test_pages_run_in_parallel_kernels_each_with_its_run_and_log(tmp_path, monke
 def test_code_balance_counts_hidden_and_visible_lines(tmp_path):
     balance = _script("book_code_balance")
     page = tmp_path / "page.md"
-    page.write_text(PAGE.replace(":tags: [remove-cell]", ":tags: [remove-input]")
-                    + "\n```{code-cell} ipython3\n:tags: [hide-input]\ny = 1\n\nz = 2\n```\n")
+    page.write_text(
+        PAGE.replace(":tags: [remove-cell]", ":tags: [remove-input]")
+        + "\n```{code-cell} ipython3\n:tags: [hide-input]\ny = 1\n\nz = 2\n```\n"
+    )
     # visible: 3 lines of the first cell (magic included) + 2 of the hide-input cell; hidden: 6
     assert balance.balance(page) == {"visible": 5, "hidden": 6, "cells": 3}
     assert balance.main([str(page), "--check"]) == 1
@@ -129,8 +134,9 @@ def test_compare_runs_finds_the_first_stage_that_differs(tmp_path):
         (data / "car").mkdir(parents=True)
         (data / "car" / "car_1.png").write_bytes(bytes([pixel]) * 16)
         out.mkdir()
-        (out / "run.json").write_text(json.dumps({"profile": "book", "seed": 0,
-                                                   "dataset_root": str(data)}))
+        (out / "run.json").write_text(
+            json.dumps({"profile": "book", "seed": 0, "dataset_root": str(data)})
+        )
         score = np.arange(6.0)
         if name == "b":
             score[4] += 1e-6  # one response rounded differently
@@ -141,3 +147,140 @@ def test_compare_runs_finds_the_first_stage_that_differs(tmp_path):
     assert result["first_difference"] == "detect"
     detect = result["stages"]["detect"]["variables"]["score"]
     assert detect["cells_differ"] == 1 and detect["max_abs_diff"] == pytest.approx(1e-6)
+
+
+def _extension():
+    spec = importlib.util.spec_from_file_location(
+        "scrppl_preexecuted", ROOT / "book" / "_ext" / "scrppl_preexecuted.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_preexecuted_page_keeps_its_cache_key_and_is_told_to_read_the_cache(tmp_path):
+    """make book executes the exercise pages beside the pipeline (scripts/pre_execute.py) into a
+    jupyter-cache; the build finds them there only if the page it reads, with the cache mode written into
+    its front matter (book/_ext/scrppl_preexecuted.py), has the key of the page that was executed."""
+    from jupyter_cache import get_cache
+    from myst_nb.core.read import read_myst_markdown_notebook
+
+    pre, ext = _script("pre_execute"), _extension()
+    page = tmp_path / "page.md"
+    page.write_text(PAGE)
+    config = pre.md_config()
+    assert {"colon_fence", "dollarmath"} <= set(config.enable_extensions)
+    executed = pre.read_page(page, config)
+    told = read_myst_markdown_notebook(
+        ext.with_cache_mode(PAGE, str(tmp_path / "cache")), config=config, add_source_map=True
+    )
+    assert told.metadata["mystnb"] == {
+        "execution_mode": "cache",
+        "execution_cache_path": str(tmp_path / "cache"),
+    }
+    cache = get_cache(str(tmp_path / "cache"))
+    assert cache.create_hashed_notebook(executed)[1] == cache.create_hashed_notebook(told)[1]
+    # a changed code cell is another key: a stale output cannot be taken for a page that changed
+    other = read_myst_markdown_notebook(PAGE.replace("x = 3", "x = 4"), config=config)
+    assert cache.create_hashed_notebook(other)[1] != cache.create_hashed_notebook(executed)[1]
+    assert ext.with_cache_mode("# no front matter\n", "c") == "# no front matter\n"
+
+
+def test_reading_order_shares_the_execution_time_between_sphinx_slices():
+    """Sphinx reads fixed slices of the page list, one process each: the order the extension gives puts
+    about the same execution time in each slice and keeps every page exactly once."""
+    from sphinx.util.parallel import make_chunks
+
+    ext = _extension()
+    costs = {
+        f"chapters/{i:02d}": float(c)
+        for i, c in enumerate([63, 60, 33, 27, 25, 24, 22, 20, 15, 15, 11])
+    }
+    docnames = (
+        sorted(costs)
+        + [f"api/{i:02d}" for i in range(18)]
+        + [f"exercises/{i:02d}" for i in range(10)]
+    )
+    order = ext.balanced_order(sorted(docnames), 2, costs)
+    assert sorted(order) == sorted(docnames)
+    loads = [sum(costs.get(d, 0.0) for d in chunk) for chunk in make_chunks(order, 2)]
+    naive = [sum(costs.get(d, 0.0) for d in chunk) for chunk in make_chunks(sorted(docnames), 2)]
+    assert max(loads) - min(loads) <= 63  # no slice holds more than one extra page's worth
+    assert max(loads) < max(naive)
+    assert (
+        ext.page_costs({"chapters/00"}).get("chapters/00", 0.0) == 0.0
+    )  # a pre-executed page is free
+
+
+def test_pre_execute_caches_a_page_under_the_key_the_build_asks_for_and_fails_on_an_error(tmp_path):
+    """scripts/pre_execute.py executes each page in a kernel: a page that runs is cached (with its outputs)
+    under the key of the page the build reads, and listed in pages.json; one that raises is not, and the
+    script fails."""
+    from jupyter_cache import get_cache
+    from myst_nb.core.read import read_myst_markdown_notebook
+
+    pre, ext = _script("pre_execute"), _extension()
+    page = PAGE.split("Some prose.")[0]  # its first cell only (the second fails on purpose)
+    good, bad = tmp_path / "good.md", tmp_path / "bad.md"
+    good.write_text(page)
+    bad.write_text(page.replace("x = 3\n", "x = 3\nraise ValueError('no')\n", 1))
+    cache_dir, times = tmp_path / "cache", tmp_path / "cache" / "pages.json"
+    status = pre.main(["--cache", str(cache_dir), "--times", str(times), str(good), str(bad)])
+    assert status == 1  # the build then executes the failing page itself and reports its error
+    assert set(json.loads(times.read_text())) == {str(tmp_path / "good")}
+    told = read_myst_markdown_notebook(
+        ext.with_cache_mode(page, str(cache_dir)), config=pre.md_config(), add_source_map=True
+    )
+    cache = get_cache(str(cache_dir))
+    _, merged = cache.merge_match_into_notebook(told)
+    assert [c.execution_count for c in merged.cells if c.cell_type == "code"] == [1]  # it ran
+
+
+def test_pre_execute_stopped_mid_page_kills_its_kernel_and_caches_nothing_half_done(tmp_path):
+    """build-book.sh stops the pre-execution when the pipeline ends (SIGUSR1): the pages already done stay
+    listed in pages.json and cached; the page being executed is abandoned (its kernel, which runs in a
+    session of its own, is killed too) and not listed, so the build executes it."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    page = PAGE.split("Some prose.")[0]
+    first, slow = tmp_path / "first.md", tmp_path / "slow.md"
+    first.write_text(page)
+    slow.write_text(page.replace("x = 3\n", "x = 3\nimport time\ntime.sleep(300)\n", 1))
+    cache_dir, times = tmp_path / "cache", tmp_path / "cache" / "pages.json"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "pre_execute.py"),
+            "--cache",
+            str(cache_dir),
+            "--times",
+            str(times),
+            str(first),
+            str(slow),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    kernels = []
+    listed = {}
+    while time.monotonic() < deadline and not listed:  # the first page is done and listed
+        time.sleep(0.2)
+        listed = json.loads(times.read_text()) if times.exists() else {}
+    time.sleep(3)  # the first page's kernel has gone, the slow page's is in its sleep
+    kernels = psutil.Process(proc.pid).children(recursive=True)
+    assert set(listed) == {str(tmp_path / "first")}, proc.communicate()[0]
+    assert kernels, "the second page's kernel never started"
+    proc.send_signal(signal.SIGUSR1)
+    output = proc.communicate(timeout=30)[0]
+    assert proc.returncode == 143, output
+    assert not any(k.is_running() and k.status() != psutil.STATUS_ZOMBIE for k in kernels)
+    assert set(json.loads(times.read_text())) == {str(tmp_path / "first")}
+    assert "slow" not in output  # never reported as done
+    assert os.path.exists(cache_dir)

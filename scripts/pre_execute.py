@@ -1,0 +1,149 @@
+"""Execute book pages ahead of the build, into a jupyter-cache that the build then reads.
+
+``make book`` (scripts/build-book.sh) runs this on the exercise pages while the pipeline runs, at the
+lowest CPU priority (``nice -n 19``): they need no run folder (their inputs come from
+``scrppl.exercises.inputs``), so their kernels take only the CPU time the pipeline leaves idle (its fits
+and trials keep about 1.5 of 2 cores busy), and the Sphinx build has fewer pages to execute. When the
+pipeline ends, build-book.sh stops this script (SIGUSR1: nbclient takes SIGTERM and SIGINT over while a
+page executes): the page being executed is abandoned (its kernel killed, nothing cached) and the build
+executes it, and every page not reached, itself.
+
+Each page is read with myst-nb's own reader and the book's MyST settings (so jupyter-cache gives it the
+key the build computes), executed in its own folder as the build would, and stored with its execution
+time; ``--times`` (the list of cached pages the build reads) is rewritten after each page. A page that
+fails is not cached: the build executes it again and reports its error as for any page.
+
+The cache is keyed on a page's code cells only, so it is only valid for one build: build-book.sh empties it
+first and the build reads it through ``SCRPPL_BOOK_PREEXECUTED`` (book/_ext/scrppl_preexecuted.py); a
+build without that variable executes every page itself.
+
+Run: ``python scripts/pre_execute.py --cache DIR [--times FILE] PAGE.md [PAGE.md ...]``; exit status 1 if
+a page fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+BOOK = Path(__file__).absolute().parents[1] / "book"  # not resolved (book/exercises is a link)
+
+
+def md_config():
+    """The MyST parser settings of the book (``parse:`` of book/_config.yml) as myst-nb reads pages."""
+    from myst_parser.config.main import MdParserConfig
+
+    parse = yaml.safe_load((BOOK / "_config.yml").read_text()).get("parse", {}) or {}
+    return MdParserConfig(enable_extensions=set(parse.get("myst_enable_extensions", [])))
+
+
+def execute_timeout() -> int:
+    """``execute: timeout`` of book/_config.yml (seconds a cell may take)."""
+    return int(yaml.safe_load((BOOK / "_config.yml").read_text())["execute"].get("timeout", 900))
+
+
+def read_page(path: Path, config=None):
+    """The notebook myst-nb makes of a MyST page (its code cells are what the cache keys on)."""
+    from myst_nb.core.read import read_myst_markdown_notebook
+
+    return read_myst_markdown_notebook(
+        path.read_text(), config=config or md_config(), add_source_map=True, path=str(path)
+    )
+
+
+class _Stop:
+    """SIGUSR1 handling: stop now, unless a page is being written to the cache (then right after it).
+
+    Stopping kills this process's kernels (each runs in its own session, so they would outlive it) and
+    exits with status 143; a page whose execution is cut short is never cached.
+    """
+
+    def __init__(self) -> None:
+        self.writing = False
+        self.pending = False
+
+    def __call__(self, signum=None, frame=None) -> None:
+        if self.writing:
+            self.pending = True
+            return
+        self.now()
+
+    def now(self) -> None:
+        import psutil
+
+        for child in psutil.Process().children(recursive=True):
+            try:
+                child.kill()
+            except psutil.Error:
+                pass
+        os._exit(143)
+
+
+def _write_times(path: Path, times: dict[str, float]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(times, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from jupyter_cache import get_cache
+    from jupyter_cache.base import CacheBundleIn
+    from jupyter_cache.executors.utils import single_nb_execution
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--cache", type=Path, required=True, help="the jupyter-cache folder the build reads"
+    )
+    ap.add_argument("--times", type=Path, default=None, help="write {page: seconds} here (JSON)")
+    ap.add_argument("pages", type=Path, nargs="+")
+    args = ap.parse_args(argv)
+    cache = get_cache(str(args.cache))
+    config, timeout = md_config(), execute_timeout()
+    times, failed = {}, []
+    stop = _Stop()
+    signal.signal(signal.SIGUSR1, stop)
+    if args.times is not None:
+        _write_times(args.times, times)
+    for page in args.pages:
+        page = page.absolute()  # not resolved: an exercise page is a link to notebooks/
+        nb = read_page(page, config)
+        t0 = time.perf_counter()
+        result = single_nb_execution(
+            nb, cwd=str(page.parent), timeout=timeout, allow_errors=False, meta_override=True
+        )
+        # the page's name in the book (its Sphinx document name), else its path
+        name = str(
+            page.with_suffix("").relative_to(BOOK)
+            if page.is_relative_to(BOOK)
+            else page.with_suffix("")
+        )
+        if result.err is not None:
+            failed.append(name)
+            print(f"[pre-execute] {name}: FAILED\n{result.exc_string}", file=sys.stderr, flush=True)
+            continue
+        stop.writing = True  # a SIGUSR1 now waits until the page is cached and listed
+        cache.cache_notebook_bundle(
+            CacheBundleIn(nb, str(page), data={"execution_seconds": result.time}),
+            check_validity=False,
+            overwrite=True,
+        )
+        times[name] = round(result.time, 2)
+        if args.times is not None:
+            _write_times(args.times, times)
+        stop.writing = False
+        print(f"[pre-execute] {name}: {time.perf_counter() - t0:.1f} s", flush=True)
+        if stop.pending:
+            stop.now()
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
