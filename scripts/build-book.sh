@@ -22,8 +22,9 @@ VENV=.venv
 SEED=${SEED:-0}
 t_start=$(date +%s)
 
-# The exercise pages need no run folder: execute them now, beside the pipeline, with `nice -n 19` so that
-# they only take the CPU time it leaves idle (scripts/pre_execute.py), into a jupyter-cache emptied here, so
+# The exercise pages need no run folder: execute them now, beside the pipeline, at the lowest CPU priority
+# (their kernels' sessions too) so that they only take the CPU time it leaves idle (scripts/pre_execute.py
+# --background), into a jupyter-cache emptied here, so
 # that it only ever holds this build's pages; the build below takes their outputs from it
 # (book/_ext/scrppl_preexecuted.py). SCRPPL_BOOK_PRE=0: no pre-execution.
 PRE=book/_build/.preexecuted
@@ -35,7 +36,7 @@ if [ "${SCRPPL_BOOK_PRE:-1}" != 0 ]; then
     eval "$($VENV/bin/python -c 'from scrppl.numerics import shell_exports; print(shell_exports())')"
     eval "$($VENV/bin/python -c 'from scrppl._io import compilation_cache_exports; print(compilation_cache_exports())')"
     unset MPLBACKEND
-    exec nice -n 19 $VENV/bin/python scripts/pre_execute.py --cache "$PRE" --times "$PRE/pages.json" \
+    exec $VENV/bin/python scripts/pre_execute.py --background --cache "$PRE" --times "$PRE/pages.json" \
       book/exercises/[0-9]*.md
   ) > book/_build/pre-execute.log 2>&1 &
   pre_pid=$!

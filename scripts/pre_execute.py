@@ -1,7 +1,8 @@
 """Execute book pages ahead of the build, into a jupyter-cache that the build then reads.
 
 ``make book`` (scripts/build-book.sh) runs this on the exercise pages while the pipeline runs, at the
-lowest CPU priority (``nice -n 19``): they need no run folder (their inputs come from
+lowest CPU priority (``--background``: this process and its kernels at nice 19, their sessions too, see
+:func:`lowest_priority`): they need no run folder (their inputs come from
 ``scrppl.exercises.inputs``), so their kernels take only the CPU time the pipeline leaves idle (its fits
 and trials keep about 1.5 of 2 cores busy), and the Sphinx build has fewer pages to execute. When the
 pipeline ends, build-book.sh stops this script (SIGUSR1: nbclient takes SIGTERM and SIGINT over while a
@@ -86,6 +87,51 @@ class _Stop:
         os._exit(143)
 
 
+def lowest_priority(pid: int) -> None:
+    """Give process ``pid`` the lowest CPU priority: nice 19, and nice 19 for its autogroup.
+
+    A kernel runs in a session of its own, and where the scheduler groups processes by session
+    (``/proc/sys/kernel/sched_autogroup_enabled``, on by default on many Linux systems) a process's nice
+    value only counts against the processes of its own session: the kernel's session would share the CPU
+    equally with the pipeline's, whatever its nice value. The session's own nice value
+    (``/proc/<pid>/autogroup``) is what weighs it against the others; it is only set for a process that
+    leads its session (a kernel), never for one that shares the session of ``make book`` and the
+    pipeline. Best effort: a process that has gone or a system without autogroups is left as it is.
+    """
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, 19)
+        leads_session = os.getsid(pid) == pid
+    except OSError:
+        return
+    if leads_session:
+        try:
+            with open(f"/proc/{pid}/autogroup", "w") as f:
+                f.write("19")
+        except OSError:
+            pass
+
+
+def _lower_kernels(interval: float = 0.2) -> None:
+    """Start a thread that gives every new child process (the kernels) :func:`lowest_priority`."""
+    import threading
+
+    import psutil
+
+    def watch() -> None:
+        me, seen = psutil.Process(), set()
+        while True:
+            try:
+                for child in me.children(recursive=True):
+                    if child.pid not in seen:
+                        seen.add(child.pid)
+                        lowest_priority(child.pid)
+            except psutil.Error:
+                pass
+            time.sleep(interval)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def _write_times(path: Path, times: dict[str, float]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -103,8 +149,16 @@ def main(argv: list[str] | None = None) -> int:
         "--cache", type=Path, required=True, help="the jupyter-cache folder the build reads"
     )
     ap.add_argument("--times", type=Path, default=None, help="write {page: seconds} here (JSON)")
+    ap.add_argument(
+        "--background",
+        action="store_true",
+        help="run this process and its kernels at the lowest CPU priority (lowest_priority)",
+    )
     ap.add_argument("pages", type=Path, nargs="+")
     args = ap.parse_args(argv)
+    if args.background:
+        lowest_priority(os.getpid())
+        _lower_kernels()
     cache = get_cache(str(args.cache))
     config, timeout = md_config(), execute_timeout()
     times, failed = {}, []
