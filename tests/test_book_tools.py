@@ -212,6 +212,7 @@ def test_reading_order_shares_the_execution_time_between_sphinx_slices():
     )  # a pre-executed page is free
 
 
+@pytest.mark.slow  # starts Jupyter kernels (make test-slow, CI)
 def test_pre_execute_caches_a_page_under_the_key_the_build_asks_for_and_fails_on_an_error(tmp_path):
     """scripts/pre_execute.py executes each page in a kernel: a page that runs is cached (with its outputs)
     under the key of the page the build reads, and listed in pages.json; one that raises is not, and the
@@ -236,6 +237,7 @@ def test_pre_execute_caches_a_page_under_the_key_the_build_asks_for_and_fails_on
     assert [c.execution_count for c in merged.cells if c.cell_type == "code"] == [1]  # it ran
 
 
+@pytest.mark.slow  # starts Jupyter kernels (make test-slow, CI)
 def test_pre_execute_stopped_mid_page_kills_its_kernel_and_caches_nothing_half_done(tmp_path):
     """build-book.sh stops the pre-execution when the pipeline ends (SIGUSR1): the pages already done stay
     listed in pages.json and cached; the page being executed is abandoned (its kernel, which runs in a
@@ -284,3 +286,36 @@ def test_pre_execute_stopped_mid_page_kills_its_kernel_and_caches_nothing_half_d
     assert set(json.loads(times.read_text())) == {str(tmp_path / "first")}
     assert "slow" not in output  # never reported as done
     assert os.path.exists(cache_dir)
+
+
+def test_lowest_priority_lowers_a_session_leader_and_its_session_but_never_the_callers_session():
+    """A kernel leads its own session; where the scheduler groups by session (autogroups) only the
+    session's nice value weighs it against the pipeline, so both are set to 19. A process in the caller's
+    session gets nice 19 but the session (that of make book and the pipeline) is left alone."""
+    import os
+    import subprocess
+
+    pre = _script("pre_execute")
+
+    def autogroup(pid):
+        try:
+            return Path(f"/proc/{pid}/autogroup").read_text().split()[-1]
+        except OSError:
+            return None
+
+    mine = autogroup(os.getpid())
+    leader = subprocess.Popen(["sleep", "30"], start_new_session=True)
+    follower = subprocess.Popen(["sleep", "30"])
+    try:
+        pre.lowest_priority(leader.pid)
+        pre.lowest_priority(follower.pid)
+        assert os.getpriority(os.PRIO_PROCESS, leader.pid) == 19
+        assert os.getpriority(os.PRIO_PROCESS, follower.pid) == 19
+        if mine is not None:  # a kernel with autogroups
+            assert autogroup(leader.pid) == "19"
+            assert autogroup(follower.pid) == mine == autogroup(os.getpid())
+    finally:
+        for p in (leader, follower):
+            p.kill()
+            p.wait()
+    pre.lowest_priority(leader.pid)  # a process that has gone: nothing raised
