@@ -10,6 +10,8 @@
   predictive checks of what the filters use;
 * :mod:`~scrppl.models.simulate` -- response tables from known parameters;
 * :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
+* :mod:`~scrppl.models.tails` -- a Student-t instance effect for the exact filters, as a quadrature over
+  its scale mixture (weighted draws);
 * :func:`load_response_model` -- what the rest of the pipeline calls: a saved fit as a
   :class:`~scrppl.models.io.ViewpointModel` (the predictive ``ResponseModel`` with its transform and grid).
 
@@ -64,6 +66,10 @@ __all__ = [
     "instance_log_marginal",
     "fit_study",
     "FitStudy",
+    "scale_mixture_nodes",
+    "student_t_expansion",
+    "weighted_log_prob",
+    "weighted_instance_init",
 ]
 
 _LAZY = {
@@ -94,6 +100,10 @@ _LAZY = {
     "instance_log_marginal": "marginal",
     "fit_study": "study",
     "FitStudy": "study",
+    "scale_mixture_nodes": "tails",
+    "student_t_expansion": "tails",
+    "weighted_log_prob": "tails",
+    "weighted_instance_init": "tails",
 }
 
 
