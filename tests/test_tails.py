@@ -44,7 +44,10 @@ def test_nodes_are_a_quadrature_of_the_gamma_law():
         assert lam.min() <= 1.000001e-6  # reaches the lambdas of far-out responses
 
 
-@pytest.mark.parametrize("nu", [2.5, 4.0, 10.0, 30.0, 100.0])
+# nu = 4 in make test; the others with make test-slow (CI), to keep make test within its time
+@pytest.mark.parametrize(
+    "nu", [pytest.param(nu, marks=pytest.mark.slow) for nu in (2.5, 10.0, 30.0, 100.0)] + [4.0]
+)
 def test_predictive_density_matches_the_student_t_convolution_far_into_the_tails(nu):
     """One response from a new instance, f = mu + u + sigma eps with u ~ t_nu(0, tau): the expanded
     model's weighted predictive equals numerical integration within 1e-4 in log density (2e-5 in
@@ -97,6 +100,7 @@ def test_instance_filter_with_student_t_effect_equals_brute_force_over_states():
     assert float(jnp.exp(mix.log_weight).sum()) == pytest.approx(1.0, abs=1e-5)
 
 
+@pytest.mark.slow  # make test-slow (CI)
 def test_many_degrees_of_freedom_come_close_to_the_gaussian_model():
     """nu = 100 (the largest accepted): lambda is near 1 and the Student-t effect nearly the Gaussian one,
     for the predictive near the mean and for the filter started with the weights (against the unweighted
