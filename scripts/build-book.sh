@@ -24,9 +24,8 @@ t_start=$(date +%s)
 
 # The exercise pages need no run folder: execute them now, beside the pipeline, at the lowest CPU priority
 # (their kernels' sessions too) so that they only take the CPU time it leaves idle (scripts/pre_execute.py
-# --background), into a jupyter-cache emptied here, so
-# that it only ever holds this build's pages; the build below takes their outputs from it
-# (book/_ext/scrppl_preexecuted.py). SCRPPL_BOOK_PRE=0: no pre-execution.
+# --background), into a jupyter-cache emptied here, so that it only ever holds this build's pages; the
+# build below takes their outputs from it (book/_ext/scrppl_preexecuted.py). SCRPPL_BOOK_PRE=0: none.
 PRE=book/_build/.preexecuted
 rm -rf "$PRE" && mkdir -p "$PRE"
 pre_pid=
