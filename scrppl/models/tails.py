@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
-from scrppl.belief import InstanceBelief, _log_prior
+from scrppl.belief import InstanceBelief, instance_init
 from scrppl.models.response import ResponseModel, _gather, check_response_model, normal_log_density
 
 __all__ = [
@@ -183,12 +183,8 @@ def weighted_instance_init(model: ResponseModel, log_weight, prior=None) -> Inst
     the belief ``∝ prior * (1/N) sum_n exp(L_n)`` is then ``prior * sum_n w_n p(F | n, o, theta)``, and
     every later step (:func:`scrppl.belief.instance_update`, the planners) is unchanged.
     """
-    check_response_model(model)
+    belief = instance_init(model, prior)
     log_weight = _check_weights(model, log_weight)
-    n, o, a = model.mu.shape[:3]
-    log_prior = _log_prior(prior, (o, a))
-    var = jnp.broadcast_to((jnp.asarray(model.tau) ** 2)[:, :, None], (n, o, a)).astype(
-        model.mu.dtype
-    )
-    start = jnp.broadcast_to((log_weight + math.log(n))[:, None, None], (n, o, a))
-    return InstanceBelief(log_prior, jnp.zeros((n, o, a), model.mu.dtype), var, start)
+    n = model.mu.shape[0]
+    start = jnp.broadcast_to((log_weight + math.log(n))[:, None, None], belief.log_evidence.shape)
+    return belief._replace(log_evidence=start.astype(belief.log_evidence.dtype))
