@@ -298,10 +298,13 @@ def test_lowest_priority_lowers_a_session_leader_and_its_session_but_never_the_c
     pre = _script("pre_execute")
 
     def autogroup(pid):
+        """The session's nice value, or None where the system has no readable autogroups (some
+        sandboxes show an empty ``/proc/<pid>/autogroup``)."""
         try:
-            return Path(f"/proc/{pid}/autogroup").read_text().split()[-1]
+            fields = Path(f"/proc/{pid}/autogroup").read_text().split()
         except OSError:
             return None
+        return fields[-1] if fields else None
 
     mine = autogroup(os.getpid())
     leader = subprocess.Popen(["sleep", "30"], start_new_session=True)
