@@ -13,8 +13,10 @@ from scrppl.models.data import extract_view_data, make_view_data
 from scrppl.models.diagnostics import DiagnosticsWarning
 from scrppl.models.fit import fit_hierarchical
 from scrppl.models.hierarchical import (
+    CENTERED_COEF_MIN_SNR,
     LOW_NOISE_RATIO,
     RELATIVE_NOISE_FLOOR,
+    azimuth_profile_snr,
     choose_noncentered,
     choose_target_accept,
     fourier_basis,
@@ -261,6 +263,39 @@ def test_choose_noncentered_per_class():
         make_model(True, ("coef[2]",))
 
 
+def test_a_profile_lost_in_the_noise_is_non_centred_however_many_responses(rng):
+    """Each cell of both classes has >= 50 responses; the absent class's profile is a cosine of
+    amplitude ``amp`` in unit noise. Its signal-to-noise ratio is the sd of the 8 cell means over their
+    standard error, known in closed form: sd of the cosine (amp / sqrt 2) times sqrt(n) per cell."""
+    n_pos, n_neg, n_views = 6, 30, 9
+    o = np.r_[np.ones(n_pos, int), np.zeros(n_neg, int)]
+    az = np.cos(2 * np.pi * np.arange(8) / 8)
+    noise = rng.normal(size=(n_pos + n_neg, 8, n_views, 1))
+
+    def data(amp_neg, amp_pos=3.0):
+        y = np.empty_like(noise)
+        for cls, amp in ((0, amp_neg), (1, amp_pos)):
+            part = noise[o == cls]  # each (class, azimuth) cell: mean exactly amp cos, sd exactly 1
+            part = (part - part.mean(axis=(0, 2, 3), keepdims=True)) / part.std(
+                axis=(0, 2, 3), keepdims=True
+            )
+            y[o == cls] = part + amp * az[None, :, None, None]
+        return make_view_data(y, o)
+
+    n_cell = n_neg * n_views
+    for amp in (0.05, 0.3):
+        np.testing.assert_allclose(
+            azimuth_profile_snr(data(amp))[0], amp / np.sqrt(2) * np.sqrt(n_cell), rtol=1e-9
+        )
+    weak = CENTERED_COEF_MIN_SNR / 2 / np.sqrt(n_cell) * np.sqrt(2)  # half the threshold
+    strong = 2 * CENTERED_COEF_MIN_SNR / np.sqrt(n_cell) * np.sqrt(2)  # twice it
+    assert choose_noncentered(data(weak))[-1] == "coef[0]"
+    assert "coef" not in "".join(choose_noncentered(data(strong)))
+    assert choose_noncentered(data(weak, amp_pos=weak * np.sqrt(n_neg / n_pos)))[-1] == "coef"
+    # noiseless classes: infinitely far above the threshold
+    assert np.isinf(azimuth_profile_snr(make_view_data(np.zeros((4, 8, 1, 1)), [1, 1, 0, 0]))).all()
+
+
 def test_noise_floor_is_the_larger_of_rounding_and_a_fraction_of_the_spread(rng):
     o = np.r_[np.ones(3, int), np.zeros(6, int)]
     y = rng.normal(0.0, 0.4, size=(9, 8, 1, 1))
@@ -445,7 +480,9 @@ def test_azimuth_noise_mask_gives_a_class_one_noise_sd(key):
     contrast = {"log_sigma_contrast": (np.full((2, 7), 0.3) * np.arange(1, 8)).astype(np.float32)}
     for mask, flat in (((1.0, 1.0), ()), ((1.0, 0.0), (1,)), ((0.0, 0.0), (0, 1))):
         sub = substitute(seed(make_model(True, ()), key), data=contrast)
-        sigma = np.asarray(trace(sub).get_trace(*args, np.asarray(mask, np.float32))["sigma"]["value"])
+        sigma = np.asarray(
+            trace(sub).get_trace(*args, np.asarray(mask, np.float32))["sigma"]["value"]
+        )
         for cls in (0, 1):
             assert (np.ptp(sigma[cls]) < 1e-6) == (cls in flat), (mask, cls)
     assert "sigma" in tr
