@@ -178,25 +178,24 @@ def test_runner_records_are_consistent(table, model, key, planner):
     )
     np.testing.assert_array_equal(np.asarray(again.views), views[:3])
     np.testing.assert_array_equal(np.asarray(again.log_belief), np.asarray(rec.log_belief)[:3])
-    if planner == "sampled":
-        # nor on how many phases (scans scoring only the views that can be left) a trial is split into
-        phased = jax.jit(
-            jax.vmap(
-                lambda k, r, a, p, st: sim.run_trial(
-                    k, model, r, a, p, st, config=PC(n_samples=64), phases=3
-                )
+    # nor on how many phases (scans scoring only the views that can be left) a trial is split into
+    # (large batches of random trials run in one phase, other large batches in several)
+    phased = jax.jit(
+        jax.vmap(
+            lambda k, r, a, p, st: sim.run_trial(
+                k, model, r, a, p, st, config=PC(planner, n_samples=64), phases=3
             )
-        )(
-            jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(6)),
-            trials.responses,
-            trials.available,
-            trials.pose,
-            trials.start,
         )
-        np.testing.assert_array_equal(np.asarray(phased.views), views)
-        np.testing.assert_allclose(
-            np.asarray(phased.log_belief), np.asarray(rec.log_belief), atol=1e-5
-        )
+    )(
+        jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(6)),
+        trials.responses,
+        trials.available,
+        trials.pose,
+        trials.start,
+    )
+    np.testing.assert_array_equal(np.asarray(phased.views), views)
+    np.testing.assert_allclose(np.asarray(phased.log_belief), np.asarray(rec.log_belief), atol=1e-5)
+    if planner == "sampled":
         # nor on how the batch is cut: several chunks (the last one padded), vectorised pairs, one
         # device instead of two
         cut = sim.run_trials(

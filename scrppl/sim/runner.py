@@ -32,7 +32,8 @@ __all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked"]
 
 #: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
 #: that can still be unvisited at its first step (more phases: less work, about twice the compilation
-#: time). Batches of at least ``_MANY_TRIALS`` trials use ``_PHASES``, smaller ones a single phase.
+#: time). Batches of at least ``_MANY_TRIALS`` trials use ``_PHASES``, smaller ones (and the random
+#: planner, which scores no candidates) a single phase.
 _PHASES = 3
 _MANY_TRIALS = 2048
 
@@ -353,7 +354,8 @@ def run_trials(
         ("filter", filter),
         ("config", config._replace(motion_cost=0.0)),  # the cost is passed as a value
         ("n_steps", n_steps),
-        ("phases", _PHASES if n >= _MANY_TRIALS else 1),
+        # the random planner scores no candidates: phases would only multiply its compilation time
+        ("phases", _PHASES if n >= _MANY_TRIALS and config.planner != "random" else 1),
     )
     out = run_chunked(
         _trial,
