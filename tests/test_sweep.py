@@ -178,6 +178,12 @@ def test_settings_are_checked():
         S.SweepSettings(num_chains=0)
     with pytest.raises(ValueError, match="retry_longer"):
         S.SweepSettings(retry_longer=0)
+    with pytest.raises(ValueError, match="half_width"):
+        S.SweepSettings(half_width=float("nan"))
+    with pytest.raises(ValueError, match="half_width"):
+        S.SweepSettings(half_width=-0.1)
+    with pytest.raises(ValueError, match="block_trials"):
+        S.SweepSettings(block_trials=1)
 
 
 def test_figure_has_both_panels(rng, tmp_path):
@@ -231,6 +237,54 @@ def _point_table():
 
 
 @pytest.mark.slow
+def test_blocks_stop_at_the_precision_aimed_for_and_each_block_is_the_same_whatever_follows(
+    tmp_path,
+):
+    import dataclasses
+
+    from scrppl.sim import metrics as M
+
+    table = _point_table()
+    key = S.point_key(0, 1.0, "dpm", "c0")
+    blocks = dataclasses.replace(TINY, n_trials=50, block_trials=20)  # at most 3 blocks: 60 trials
+    assert blocks.max_blocks == 3
+    # an interval always narrower than 100 views: one block
+    one, ds1 = S.run_point(
+        key, table, tmp_path / "a", "dpm", "c0", dataclasses.replace(blocks, half_width=100.0)
+    )
+    assert one["n_trials"] == ds1.sizes["trial"] == 20
+    # never narrow enough: every block, and the first is the one-block run's
+    every, ds3 = S.run_point(
+        key, table, tmp_path / "b", "dpm", "c0", dataclasses.replace(blocks, half_width=1e-9)
+    )
+    assert every["n_trials"] == ds3.sizes["trial"] == 60
+    np.testing.assert_array_equal(ds3["trial"].values, np.arange(60))
+    for var in ("views_to_confidence", "azimuth", "p_true"):
+        np.testing.assert_array_equal(ds3[var].isel(trial=slice(0, 20)).values, ds1[var].values)
+    # the summary is that of all the trials run
+    plan = ds3["views_to_confidence"].sel(planner="sampled").values[0].astype(float)
+    rand = ds3["views_to_confidence"].sel(planner="random").values[0].astype(float)
+    d, lo, hi = M.paired_bootstrap_difference(0, rand, plan, TINY.n_boot)
+    assert (
+        every["views_saved"],
+        every["views_saved_lo"],
+        every["views_saved_hi"],
+    ) == pytest.approx((d, lo, hi))
+    # stopping in between: the run stops after the first block whose interval is as narrow as aimed
+    # for (aiming at the width after two blocks: after two blocks, or after one if that was narrower)
+    widths = []
+    for n in (20, 40, 60):
+        d, lo, hi = M.paired_bootstrap_difference(0, rand[:n], plan[:n], TINY.n_boot)
+        widths.append(max(hi - d, d - lo))
+    aim = widths[1]
+    first = next(n for n, w in zip((20, 40, 60), widths, strict=True) if w <= aim)
+    mid, _ = S.run_point(
+        key, table, tmp_path / "c", "dpm", "c0", dataclasses.replace(blocks, half_width=aim)
+    )
+    assert mid["n_trials"] == first
+
+
+@pytest.mark.slow
 def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
     from scrppl.sim import metrics as M
 
@@ -258,7 +312,9 @@ def test_same_key_same_numbers_and_the_summary_is_the_experiments(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred_then_with_pooled_noise(tmp_path):
+def test_a_failed_fit_is_retried_at_099_then_longer_fully_noncentred_then_with_pooled_noise(
+    tmp_path,
+):
     import dataclasses
 
     from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED
