@@ -533,6 +533,7 @@ def _section_sweep(out: Path, profile: str) -> str:
                     "saved [95% CI]": f"{_num(p.get('views_saved'), 3)} "
                     f"[{_num(p.get('views_saved_lo'), 3)}, {_num(p.get('views_saved_hi'), 3)}]",
                     "confident, random": _num(r.get("random"), 3),
+                    "trials": p.get("n_trials", "?"),
                     "fit ok": "yes" if p.get("fit_ok") else "NO",
                 }
             )
@@ -543,7 +544,14 @@ def _section_sweep(out: Path, profile: str) -> str:
         "The paired experiment repeated with the run's detectors on new renderings of its held-out "
         "instances at imaging difficulty levels (0: no nuisance, 1: the `robot` preset, 2: `hard`; "
         "`scrppl.datasets.synthetic.domain.domain_at_level`), one ring of views: "
-        f"{st.get('n_trials', '?')} paired trials per row, the hierarchical model with the "
+        + (
+            f"paired trials in blocks of {st.get('block_trials')} until the interval of the views saved "
+            f"is at most +-{st['half_width']} views, at most {st.get('n_trials', '?')} (rounded up to "
+            "whole blocks; the *trials* column says how many ran)"
+            if st.get("half_width", 0) > 0
+            else f"{st.get('n_trials', '?')} paired trials per row"
+        )
+        + ", the hierarchical model with the "
         "instance-aware filter, entropy planning against a random unseen view. Views are the mean "
         "number to p(true) > 0.95 (a trial that never gets there counts as one more than it had); "
         "*saved* is random minus planning with its paired bootstrap interval. Each fit runs "

@@ -472,6 +472,7 @@ def test_report_sweep_section_has_one_row_per_point(tmp_path):
         "views_saved_hi": 0.37,
         "ap": 0.7123,
         "fit_ok": True,
+        "n_trials": 10000,
     }
     summary = {
         "settings": {"n_trials": 10000, "num_chains": 4, "num_samples": 500},
@@ -485,8 +486,19 @@ def test_report_sweep_section_has_one_row_per_point(tmp_path):
     sweep = text.split("## When does looking pay off?")[1].split("\n## ")[0]
     rows = [line for line in sweep.splitlines() if line.startswith("| ") and "level" not in line]
     assert len(rows) == 3
-    assert "| 1.5 | dpm/car | 0.71 | 2.50 | 2.25 | 0.250 [0.123, 0.370] | 0.988 | NO |" in rows
+    assert (
+        "| 1.5 | dpm/car | 0.71 | 2.50 | 2.25 | 0.250 [0.123, 0.370] | 0.988 | 10000 | NO |" in rows
+    )
     assert "2 of 3 fits pass every diagnostic gate." in sweep and "10000 paired trials" in sweep
+    # trials in blocks until the interval is narrow enough: the text says so, each row how many ran
+    summary["settings"].update(half_width=0.05, block_trials=2048, n_trials=10000)
+    summary["points"]["level-0"]["dpm/car"] = {**point, "n_trials": 2048}
+    (tmp_path / "sweep-summary.json").write_text(json.dumps(summary))
+    sweep = write_report(tmp_path).read_text().split("## When does looking pay off?")[1]
+    assert "blocks of 2048 until the interval of the views saved is at most +-0.05 views" in sweep
+    assert (
+        "| 0 | dpm/car | 0.71 | 2.50 | 2.25 | 0.250 [0.123, 0.370] | 0.988 | 2048 | yes |" in sweep
+    )
 
 
 def test_the_book_profile_has_no_sweep_stage_and_its_report_says_how_to_run_it(tmp_path):
