@@ -7,13 +7,20 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from scrppl.belief import instance_init, instance_update, joint_log_belief, predictive_mixture
+from scrppl.belief import (
+    instance_init,
+    instance_update,
+    joint_log_belief,
+    naive_bayes_init,
+    predictive_mixture,
+)
 from scrppl.models.response import ResponseModel, log_prob
 from scrppl.models.tails import (
     scale_mixture_nodes,
     student_t_expansion,
     weighted_instance_init,
     weighted_log_prob,
+    weighted_naive_bayes_update,
 )
 
 
@@ -98,6 +105,45 @@ def test_instance_filter_with_student_t_effect_equals_brute_force_over_states():
     # the planners' predictive mixture: weights normalised over (draw, node, state)
     mix = predictive_mixture(expanded, belief, 2)
     assert float(jnp.exp(mix.log_weight).sum()) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_naive_bayes_filter_with_student_t_effect_equals_brute_force_over_states():
+    """The naive-Bayes filter treats each view as a new instance: with the weighted likelihood its
+    posterior over (o, theta) is the product over views of the draw-averaged Student-t predictive of
+    each response, integrated numerically per draw, view and state (an outlying response included)."""
+    rng = np.random.default_rng(5)
+    n, o, a, nu = 2, 2, 4, 4.0
+    mu = rng.normal(size=(n, o, a, 1, 1))
+    sigma = rng.uniform(0.3, 0.8, size=(n, o, a, 1, 1))
+    tau = rng.uniform(0.3, 1.0, size=(n, o))
+    model = ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
+    expanded, log_w = student_t_expansion(model, nu)
+    views, fs = [0, 1, 3], [0.4, -0.2, 6.0]
+    belief = naive_bayes_init(expanded)
+    for phi, f in zip(views, fs, strict=True):
+        belief = weighted_naive_bayes_update(expanded, log_w, belief, f, phi)
+    got = np.asarray(joint_log_belief(belief))
+    log_post = np.zeros((o, a))
+    for k in range(o):
+        for theta in range(a):
+            for phi, f in zip(views, fs, strict=True):
+                rel = (phi - theta) % a
+                log_post[k, theta] += np.log(
+                    np.mean(
+                        [
+                            _t_evidence(
+                                [f], [mu[d, k, rel, 0, 0]], nu, tau[d, k], [sigma[d, k, rel, 0, 0]]
+                            )
+                            for d in range(n)
+                        ]
+                    )
+                )
+    want = log_post - np.log(np.exp(log_post).sum())
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    with pytest.raises(ValueError, match="log_weight has shape"):
+        weighted_naive_bayes_update(expanded, log_w[:-1], belief, 0.1, 0)
+    with pytest.raises(ValueError, match="not finite"):
+        weighted_naive_bayes_update(expanded, log_w, belief, float("nan"), 0)
 
 
 @pytest.mark.slow  # make test-slow (CI)

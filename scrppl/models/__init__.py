@@ -70,6 +70,8 @@ __all__ = [
     "student_t_expansion",
     "weighted_log_prob",
     "weighted_instance_init",
+    "weighted_naive_bayes_log_likelihood",
+    "weighted_naive_bayes_update",
 ]
 
 _LAZY = {
@@ -104,6 +106,8 @@ _LAZY = {
     "student_t_expansion": "tails",
     "weighted_log_prob": "tails",
     "weighted_instance_init": "tails",
+    "weighted_naive_bayes_log_likelihood": "tails",
+    "weighted_naive_bayes_update": "tails",
 }
 
 

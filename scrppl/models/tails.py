@@ -16,6 +16,7 @@ scalar Kalman filter per draw). So a quadrature over ``lambda`` turns each poste
 (:func:`student_t_expansion`), and the filters stay exact up to the quadrature's error:
 
 * the predictive density of a response from a new instance is :func:`weighted_log_prob`;
+* the naive-Bayes filter weighs the draws in its likelihood (:func:`weighted_naive_bayes_update`);
 * the instance-aware filter takes the weights as its starting log evidence
   (:func:`weighted_instance_init`): ``L[n, q] = log(Q w_q)`` before any response, after which
   :func:`scrppl.belief.instance_update`, :func:`scrppl.belief.joint_log_belief` and
@@ -45,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
-from scrppl.belief import InstanceBelief, instance_init
+from scrppl.belief import InstanceBelief, NaiveBayesBelief, instance_init
 from scrppl.models.response import ResponseModel, _gather, check_response_model, normal_log_density
 
 __all__ = [
@@ -54,6 +55,8 @@ __all__ = [
     "scale_mixture_nodes",
     "student_t_expansion",
     "weighted_log_prob",
+    "weighted_naive_bayes_log_likelihood",
+    "weighted_naive_bayes_update",
     "weighted_instance_init",
 ]
 
@@ -174,6 +177,41 @@ def weighted_log_prob(model: ResponseModel, log_weight, f, o, a, e=0, s=0) -> jn
     mu, sigma, tau = _gather(model, *(jnp.broadcast_to(x, shape) for x in (o, a, e, s)))
     lp = normal_log_density(jnp.broadcast_to(f, shape)[None], mu, sigma**2 + tau**2)
     return logsumexp(lp + log_weight.reshape((-1,) + (1,) * len(shape)), axis=0)
+
+
+def weighted_naive_bayes_log_likelihood(
+    model: ResponseModel, log_weight, f, phi, e=0, s=0
+) -> jnp.ndarray:
+    """``log p(f | o, theta)`` at robot view ``(phi, e, s)`` for the naive-Bayes filter, draws weighted.
+
+    :func:`scrppl.belief.naive_bayes_log_likelihood` with weights ``exp(log_weight)`` instead of
+    ``1 / N``, shape ``(O, A)``: with the output of :func:`student_t_expansion`, the predictive of a
+    response from a new instance with the Student-t instance effect integrated out (by the quadrature).
+    """
+    from scrppl.belief import _check_response, check_view, view_parameters
+
+    check_response_model(model)
+    _check_response(f)
+    check_view(model, phi, e, s)
+    log_weight = _check_weights(model, log_weight)
+    mu, sigma2, tau2 = view_parameters(model, phi, e, s)
+    lp = normal_log_density(f, mu, sigma2 + tau2)
+    return logsumexp(lp + log_weight[:, None, None], axis=0)
+
+
+def weighted_naive_bayes_update(
+    model: ResponseModel, log_weight, belief: NaiveBayesBelief, f, phi, e=0, s=0
+) -> NaiveBayesBelief:
+    """One naive-Bayes step with the weighted likelihood :func:`weighted_naive_bayes_log_likelihood`.
+
+    As :func:`scrppl.belief.naive_bayes_update`; the belief starts as the unweighted filter's
+    (:func:`scrppl.belief.naive_bayes_init`): the weights only enter through the likelihood.
+    """
+    from scrppl.belief import _check_update
+
+    _check_update(model, belief, f, phi, e, s)
+    logp = belief.log_belief + weighted_naive_bayes_log_likelihood(model, log_weight, f, phi, e, s)
+    return NaiveBayesBelief(logp - logsumexp(logp))
 
 
 def weighted_instance_init(model: ResponseModel, log_weight, prior=None) -> InstanceBelief:
