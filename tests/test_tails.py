@@ -16,6 +16,9 @@ from scrppl.belief import (
 )
 from scrppl.models.response import ResponseModel, log_prob
 from scrppl.models.tails import (
+    kway_student_t_expansion,
+    kway_weighted_init,
+    kway_weighted_naive_bayes_update,
     scale_mixture_nodes,
     student_t_expansion,
     weighted_instance_init,
@@ -144,6 +147,62 @@ def test_naive_bayes_filter_with_student_t_effect_equals_brute_force_over_states
         weighted_naive_bayes_update(expanded, log_w[:-1], belief, 0.1, 0)
     with pytest.raises(ValueError, match="not finite"):
         weighted_naive_bayes_update(expanded, log_w, belief, float("nan"), 0)
+
+
+@pytest.mark.slow  # about 250 numerical integrals: make test-slow (CI)
+def test_kway_filters_with_student_t_effects_equal_brute_force_over_states():
+    """Two target detectors, each with its own posterior draws and its own Student-t instance effect;
+    three views of one object, one response far out. Instance-aware: b(k, theta) is the prior times, per
+    target, the draw-averaged evidence of all its responses, integrated numerically. Naive Bayes: per
+    target and view, the draw-averaged single-response predictive."""
+    from scrppl.kway import filter as KF
+    from scrppl.kway.models import KwayModel
+
+    rng = np.random.default_rng(11)
+    t_, n, k_, a, nu = 2, 2, 3, 4, 4.0
+    mu = rng.normal(size=(t_, n, k_, a, 1, 1))
+    sigma = rng.uniform(0.3, 0.8, size=(t_, n, k_, a, 1, 1))
+    tau = rng.uniform(0.3, 1.0, size=(t_, n, k_))
+    model = KwayModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
+    expanded, log_w = kway_student_t_expansion(model, nu)
+    views = [0, 1, 3]
+    fs = [[0.4, -0.3], [-0.2, 0.1], [6.0, 0.5]]
+    inst = kway_weighted_init("instance", expanded, log_w)
+    nb = kway_weighted_init("naive_bayes", expanded, log_w)
+    for phi, f in zip(views, fs, strict=True):
+        inst = KF.update(expanded, inst, jnp.asarray(f), phi)
+        nb = kway_weighted_naive_bayes_update(expanded, log_w, nb, jnp.asarray(f), phi)
+    want_inst, want_nb = np.zeros((k_, a)), np.zeros((k_, a))
+    f_arr = np.asarray(fs)  # (views, T)
+    for k in range(k_):
+        for theta in range(a):
+            rel = [(phi - theta) % a for phi in views]
+            for t in range(t_):
+                m, sd = mu[t, :, k, rel, 0, 0], sigma[t, :, k, rel, 0, 0]  # (views, N)
+                want_inst[k, theta] += np.log(
+                    np.mean(
+                        [
+                            _t_evidence(f_arr[:, t], m[:, d], nu, tau[t, d, k], sd[:, d])
+                            for d in range(n)
+                        ]
+                    )
+                )
+                for j in range(len(views)):
+                    want_nb[k, theta] += np.log(
+                        np.mean(
+                            [
+                                _t_evidence([f_arr[j, t]], [m[j, d]], nu, tau[t, d, k], [sd[j, d]])
+                                for d in range(n)
+                            ]
+                        )
+                    )
+    for got, want in ((KF.joint_log_belief(inst), want_inst), (KF.joint_log_belief(nb), want_nb)):
+        want = want - np.log(np.exp(want).sum())
+        np.testing.assert_allclose(np.asarray(got), want, atol=1e-5)
+    with pytest.raises(ValueError, match="log_weight has shape"):
+        kway_weighted_init("instance", expanded, log_w[:-1])
+    with pytest.raises(ValueError, match="naive-Bayes belief"):
+        kway_weighted_naive_bayes_update(expanded, log_w, inst, jnp.asarray(fs[0]), 0)
 
 
 @pytest.mark.slow  # make test-slow (CI)

@@ -72,6 +72,9 @@ __all__ = [
     "weighted_instance_init",
     "weighted_naive_bayes_log_likelihood",
     "weighted_naive_bayes_update",
+    "kway_student_t_expansion",
+    "kway_weighted_init",
+    "kway_weighted_naive_bayes_update",
 ]
 
 _LAZY = {
@@ -108,6 +111,9 @@ _LAZY = {
     "weighted_instance_init": "tails",
     "weighted_naive_bayes_log_likelihood": "tails",
     "weighted_naive_bayes_update": "tails",
+    "kway_student_t_expansion": "tails",
+    "kway_weighted_init": "tails",
+    "kway_weighted_naive_bayes_update": "tails",
 }
 
 

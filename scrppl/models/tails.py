@@ -17,6 +17,9 @@ scalar Kalman filter per draw). So a quadrature over ``lambda`` turns each poste
 
 * the predictive density of a response from a new instance is :func:`weighted_log_prob`;
 * the naive-Bayes filter weighs the draws in its likelihood (:func:`weighted_naive_bayes_update`);
+* the K-way filters (:mod:`scrppl.kway.filter`) likewise, every target detector expanded with the same
+  nodes (:func:`kway_student_t_expansion`, :func:`kway_weighted_init`,
+  :func:`kway_weighted_naive_bayes_update`);
 * the instance-aware filter takes the weights as its starting log evidence
   (:func:`weighted_instance_init`): ``L[n, q] = log(Q w_q)`` before any response, after which
   :func:`scrppl.belief.instance_update`, :func:`scrppl.belief.joint_log_belief` and
@@ -58,6 +61,9 @@ __all__ = [
     "weighted_naive_bayes_log_likelihood",
     "weighted_naive_bayes_update",
     "weighted_instance_init",
+    "kway_student_t_expansion",
+    "kway_weighted_init",
+    "kway_weighted_naive_bayes_update",
 ]
 
 #: Largest spacing of the quadrature's nodes in ``log lambda``.
@@ -226,3 +232,95 @@ def weighted_instance_init(model: ResponseModel, log_weight, prior=None) -> Inst
     n = model.mu.shape[0]
     start = jnp.broadcast_to((log_weight + math.log(n))[:, None, None], belief.log_evidence.shape)
     return belief._replace(log_evidence=start.astype(belief.log_evidence.dtype))
+
+
+# ------------------------------------------------------------------------------------------------
+# K-way (scrppl.kway): T target detectors, each with its own instance effect
+
+
+def kway_student_t_expansion(model, nu: float, step: float = DEFAULT_STEP):
+    """:func:`student_t_expansion` of every target detector of a :class:`~scrppl.kway.models.KwayModel`.
+
+    Draw ``n`` of each target becomes draws ``n * Q + q`` with instance sd ``tau[t, n, k] / sqrt(lambda_q)``;
+    every target gets the same nodes, so one ``(N * Q,)`` vector of log weights serves them all.
+
+    Returns
+    -------
+    expanded, log_weight
+        A ``KwayModel`` of ``N * Q`` draws per target and the draws' log weights (summing to one).
+    """
+    from scrppl.kway.models import KwayModel, check_kway_model
+
+    check_kway_model(model)
+    lam, log_w = scale_mixture_nodes(nu, step)
+    n, q = model.mu.shape[1], lam.shape[0]
+
+    def repeat(x):
+        return jnp.repeat(jnp.asarray(x), q, axis=1)
+
+    tau = jnp.asarray(model.tau)  # (T, N, K)
+    scale = jnp.asarray(1.0 / np.sqrt(lam), dtype=tau.dtype)
+    tau_nq = (tau[:, :, None, :] * scale[None, None, :, None]).reshape(
+        (tau.shape[0], n * q, tau.shape[2])
+    )
+    expanded = KwayModel(repeat(model.mu), repeat(model.sigma), tau_nq)
+    return expanded, np.tile(log_w, n) - math.log(n)
+
+
+def _check_kway_weights(model, log_weight) -> jnp.ndarray:
+    log_weight = jnp.asarray(log_weight, dtype=model.mu.dtype)
+    if log_weight.shape != (model.mu.shape[1],):
+        raise ValueError(
+            f"log_weight has shape {log_weight.shape} but the model has {model.mu.shape[1]} draws per "
+            "target: pass the weights kway_student_t_expansion returned with this model"
+        )
+    return log_weight
+
+
+def kway_weighted_init(kind: str, model, log_weight, prior=None):
+    """The K-way belief of filter ``kind`` before any view, the draws weighted by ``exp(log_weight)``.
+
+    ``"instance"``: :func:`scrppl.kway.filter.init_belief` with the starting log evidence
+    ``L[t, n] = log(N w_n)`` for every target, so that the belief's per-target mean over the draws is the
+    weighted mean, and :func:`scrppl.kway.filter.update` and the planner work unchanged. ``"naive_bayes"``:
+    the unweighted filter's start (the weights enter through
+    :func:`kway_weighted_naive_bayes_update`).
+    """
+    from scrppl.kway.filter import init_belief
+
+    belief = init_belief(kind, model, prior)
+    log_weight = _check_kway_weights(model, log_weight)
+    if kind == "naive_bayes":
+        return belief
+    start = jnp.broadcast_to(
+        (log_weight + math.log(model.mu.shape[1]))[None, :, None, None], belief.log_evidence.shape
+    )
+    return belief._replace(log_evidence=start.astype(belief.log_evidence.dtype))
+
+
+def kway_weighted_naive_bayes_update(model, log_weight, belief, f, phi, e=0, s=0):
+    """One K-way naive-Bayes step with the draws weighted by ``exp(log_weight)``.
+
+    ``log b(k, theta) += sum_t log sum_n w_n p_t(f_t | n, k, theta)``, renormalised:
+    :func:`scrppl.kway.filter.update` with the weights instead of ``1 / N``.
+    """
+    from scrppl.kway.filter import (
+        KwayNaiveBayesBelief,
+        _check_view,
+        _responses,
+        check_kway_belief,
+        view_parameters,
+    )
+
+    if not isinstance(belief, KwayNaiveBayesBelief):
+        raise ValueError(
+            f"kway_weighted_naive_bayes_update takes a naive-Bayes belief, got {type(belief).__name__}"
+        )
+    check_kway_belief(model, belief)
+    _check_view(model, phi, e, s)
+    log_weight = _check_kway_weights(model, log_weight)
+    f = _responses(model, f)
+    mu, sigma2, tau2 = view_parameters(model, phi, e, s)
+    lp = normal_log_density(f[:, None, None, None], mu, sigma2 + tau2)
+    logp = belief.log_belief + logsumexp(lp + log_weight[None, :, None, None], axis=1).sum(axis=0)
+    return KwayNaiveBayesBelief(logp - logsumexp(logp))
