@@ -449,7 +449,9 @@ def azimuth_profile_snr(data: ViewData) -> np.ndarray:
 
 
 def choose_noncentered(data: ViewData) -> tuple[str, ...]:
-    """The parameterisation for ``data``, by the rules measured in ``benchmarks/bench_fit.py``.
+    """The parameterisation for ``data``, by rules measured on real tables.
+
+    Counts: ``benchmarks/bench_fit.py``; signal-to-noise: ``benchmarks/record_fit_retries.py``.
 
     The noise-scale and category contrasts (whose group-level sds may be near zero) and latent instance
     effects are always non-centred. The azimuth coefficients of a class are centred when each of its
