@@ -234,14 +234,15 @@ def handler(args: argparse.Namespace) -> int:
     targets = choose_targets(available, requested, n_default=DEFAULT_N_TARGETS)
     trials = settings["trials"] if args.trials is None else int(args.trials)
     sweep_settings = profile_settings(settings, trials)
-    upto = (
-        f"blocks of {sweep_settings.block_trials} trials until +-{sweep_settings.half_width} views, up to "
-        if sweep_settings.half_width > 0
-        else ""
+    st = sweep_settings
+    per_point = (
+        f"blocks of {st.block_trials} trials until +-{st.half_width} views, up to "
+        f"{st.max_blocks * st.block_trials}"
+        if st.half_width > 0
+        else str(trials)
     )
     log(
-        f"[sweep] levels {levels} x families {families} x targets {targets}, "
-        f"{upto}{trials} trials per point"
+        f"[sweep] levels {levels} x families {families} x targets {targets}, {per_point} trials per point"
     )
     ds, summary = run_sweep(
         seed,

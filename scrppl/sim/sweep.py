@@ -611,8 +611,9 @@ def run_sweep(
                         summary["cached"] = True
                     else:
                         bar.set_postfix_str(f"{label} {fam}/{t}")
-                        upto = "up to " if settings.half_width > 0 else ""
-                        log(f"[sweep] {label}: {fam}/{t}: fit and {upto}{settings.n_trials} trials")
+                        most = settings.max_blocks * settings.block_trials
+                        upto = f"up to {most}" if settings.half_width > 0 else settings.n_trials
+                        log(f"[sweep] {label}: {fam}/{t}: fit and {upto} trials")
                         summary, _ = run_point(
                             point_key(seed, level, fam, t),
                             table,
