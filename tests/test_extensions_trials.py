@@ -109,8 +109,15 @@ def test_one_detector_reproduces_run_trials(table, key, policy, kind, planner):
     np.testing.assert_allclose(rec.responses[..., 0], want.responses, atol=1e-6)
 
 
-@pytest.mark.parametrize("kind", B.FILTERS)
-@pytest.mark.parametrize("policy", XT.POLICIES)
+# one pair in make test, the other three in make test-slow (CI runs both): 14-25 s each
+@pytest.mark.parametrize(
+    "kind, policy",
+    [
+        pytest.param(k, p, marks=() if (p, k) == ("fuse", "instance") else pytest.mark.slow)
+        for k in B.FILTERS
+        for p in XT.POLICIES
+    ],
+)
 def test_records_replay_through_the_fused_filter(table, key, kind, policy):
     rng = np.random.default_rng(5)
     models = tuple(

@@ -551,6 +551,7 @@ def test_class_metrics_and_confusion():
     assert np.isnan(conf.sel({"method": "m", "step": 1}).values[2]).all()
 
 
+@pytest.mark.slow  # about 30 s: make test-slow (CI)
 def test_experiment_on_a_separable_table(rng):
     """Responses that name the category outright: every method is right after one view."""
     k, n_i, a = 3, 4, 4

@@ -208,7 +208,11 @@ def test_fast_exp2_against_numpy():
     assert np.all(np.asarray(K._exp2(jnp.array([-128.0, -200.0, -1e30]))) == 0.0)
 
 
-@pytest.mark.parametrize("kind", B.FILTERS)
+# the instance-aware filter in make test, naive Bayes (about 25 s) in make test-slow (CI)
+@pytest.mark.parametrize(
+    "kind",
+    [pytest.param(k, marks=pytest.mark.slow) if k == "naive_bayes" else k for k in B.FILTERS],
+)
 def test_sampled_kernel_equals_entropy_of_the_sampled_responses(rng, key, kind):
     # the fused kernel against the plain formula (posterior_entropy) on the very same responses, for
     # several draws, concentrated beliefs and impossible states (zero prior), and every objective
