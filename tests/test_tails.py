@@ -76,17 +76,24 @@ def test_predictive_density_matches_the_student_t_convolution_far_into_the_tails
         assert want[3] - gaussian[3] > 1  # the heavy tail is what changed
 
 
-def test_instance_filter_with_student_t_effect_equals_brute_force_over_states():
-    """Three views of one object: the instance-aware filter on the expanded model, started with the
-    weights, gives the posterior over (o, theta) computed by integrating the Student-t instance effect
-    numerically for every draw and state -- also for an outlying response."""
-    rng = np.random.default_rng(3)
-    n, o, a, nu = 2, 2, 4, 4.0
+def _binary_model(seed: int, nu: float = 4.0):
+    """Two draws, two classes, four poses of random means and noise sds; the model, its Student-t
+    expansion and the raw arrays."""
+    rng = np.random.default_rng(seed)
+    n, o, a = 2, 2, 4
     mu = rng.normal(size=(n, o, a, 1, 1))
     sigma = rng.uniform(0.3, 0.8, size=(n, o, a, 1, 1))
     tau = rng.uniform(0.3, 1.0, size=(n, o))
     model = ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
-    expanded, log_w = student_t_expansion(model, nu)
+    return (mu, sigma, tau), student_t_expansion(model, nu)
+
+
+def test_instance_filter_with_student_t_effect_equals_brute_force_over_states():
+    """Three views of one object: the instance-aware filter on the expanded model, started with the
+    weights, gives the posterior over (o, theta) computed by integrating the Student-t instance effect
+    numerically for every draw and state -- also for an outlying response."""
+    n, o, a, nu = 2, 2, 4, 4.0
+    (mu, sigma, tau), (expanded, log_w) = _binary_model(3, nu)
     views = [0, 1, 3]
     fs = [0.4, -0.2, 6.0]  # the last one far out
     belief = weighted_instance_init(expanded, log_w)
@@ -114,13 +121,8 @@ def test_naive_bayes_filter_with_student_t_effect_equals_brute_force_over_states
     """The naive-Bayes filter treats each view as a new instance: with the weighted likelihood its
     posterior over (o, theta) is the product over views of the draw-averaged Student-t predictive of
     each response, integrated numerically per draw, view and state (an outlying response included)."""
-    rng = np.random.default_rng(5)
     n, o, a, nu = 2, 2, 4, 4.0
-    mu = rng.normal(size=(n, o, a, 1, 1))
-    sigma = rng.uniform(0.3, 0.8, size=(n, o, a, 1, 1))
-    tau = rng.uniform(0.3, 1.0, size=(n, o))
-    model = ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
-    expanded, log_w = student_t_expansion(model, nu)
+    (mu, sigma, tau), (expanded, log_w) = _binary_model(5, nu)
     views, fs = [0, 1, 3], [0.4, -0.2, 6.0]
     belief = naive_bayes_init(expanded)
     for phi, f in zip(views, fs, strict=True):

@@ -159,12 +159,22 @@ def student_t_expansion(
     return expanded, log_weight
 
 
-def _check_weights(model: ResponseModel, log_weight) -> jnp.ndarray:
+def _check_weights(model, log_weight, draw_axis: int = 0) -> jnp.ndarray:
+    """The log weights as an array, checked: one per draw.
+
+    The draws are axis ``draw_axis`` of ``mu``: 0 for a ``ResponseModel``, 1 for a ``KwayModel``.
+    """
     log_weight = jnp.asarray(log_weight, dtype=model.mu.dtype)
-    if log_weight.shape != (model.mu.shape[0],):
+    n = model.mu.shape[draw_axis]
+    if log_weight.shape != (n,):
+        per, maker = (
+            ("", "student_t_expansion")
+            if draw_axis == 0
+            else (" per target", "kway_student_t_expansion")
+        )
         raise ValueError(
-            f"log_weight has shape {log_weight.shape} but the model has {model.mu.shape[0]} draws: "
-            "pass the weights student_t_expansion returned with this model"
+            f"log_weight has shape {log_weight.shape} but the model has {n} draws{per}: "
+            f"pass the weights {maker} returned with this model"
         )
     return log_weight
 
@@ -267,16 +277,6 @@ def kway_student_t_expansion(model, nu: float, step: float = DEFAULT_STEP):
     return expanded, np.tile(log_w, n) - math.log(n)
 
 
-def _check_kway_weights(model, log_weight) -> jnp.ndarray:
-    log_weight = jnp.asarray(log_weight, dtype=model.mu.dtype)
-    if log_weight.shape != (model.mu.shape[1],):
-        raise ValueError(
-            f"log_weight has shape {log_weight.shape} but the model has {model.mu.shape[1]} draws per "
-            "target: pass the weights kway_student_t_expansion returned with this model"
-        )
-    return log_weight
-
-
 def kway_weighted_init(kind: str, model, log_weight, prior=None):
     """The K-way belief of filter ``kind`` before any view, the draws weighted by ``exp(log_weight)``.
 
@@ -289,7 +289,7 @@ def kway_weighted_init(kind: str, model, log_weight, prior=None):
     from scrppl.kway.filter import init_belief
 
     belief = init_belief(kind, model, prior)
-    log_weight = _check_kway_weights(model, log_weight)
+    log_weight = _check_weights(model, log_weight, draw_axis=1)
     if kind == "naive_bayes":
         return belief
     start = jnp.broadcast_to(
@@ -318,7 +318,7 @@ def kway_weighted_naive_bayes_update(model, log_weight, belief, f, phi, e=0, s=0
         )
     check_kway_belief(model, belief)
     _check_view(model, phi, e, s)
-    log_weight = _check_kway_weights(model, log_weight)
+    log_weight = _check_weights(model, log_weight, draw_axis=1)
     f = _responses(model, f)
     mu, sigma2, tau2 = view_parameters(model, phi, e, s)
     lp = normal_log_density(f[:, None, None, None], mu, sigma2 + tau2)
