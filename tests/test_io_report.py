@@ -133,8 +133,18 @@ def _fake_run(out):
             "ebfmi": [0.812345],
             "failures": ["R-hat > 1.01: a (1.020)"],
             "attempts": [
-                {"target_accept_prob": 0.9, "ok": False, "divergences": 3},
-                {"target_accept_prob": 0.99, "ok": False, "divergences": 2},
+                {
+                    "target_accept_prob": 0.9,
+                    "ok": False,
+                    "divergences": 3,
+                    "noncentered": ["u", "coef[1]"],
+                },
+                {
+                    "target_accept_prob": 0.99,
+                    "ok": False,
+                    "divergences": 2,
+                    "noncentered": ["u", "coef"],
+                },
             ],
         },
     }
@@ -200,8 +210,9 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     assert "| dpm | 1.18 / n/a | 1.10 / 0.60 |" in text  # not estimable stays n/a
     assert "| detect | 70.1 |" in text and "| **total** | 115.7 |" in text  # seconds: 1 decimal
     assert (
-        "| dpm/car | NO | 1.021 | 300 | 250 | 2 | 0.81 | 0.9 -> 0.99 |" in text
-    )  # R-hat 3, ESS whole
+        "| dpm/car | NO | 1.021 | 300 | 250 | 2 | 0.81 | 0.9 -> 0.99 | coef[1] |" in text
+    )  # R-hat 3, ESS whole; the first attempt's non-centred coefficients
+    assert "**1 of 1 needed a second attempt**" in text
     assert (
         "| car | paper | gaussian+naive_bayes | 2.50 | 3.25 | -0.750 [-1.000, -0.500] | 0.041 |"
         in text
