@@ -379,12 +379,14 @@ def run_point(
     import jax
 
     from scrppl.detectors.evaluation import detector_ap
+    from scrppl.models import transforms
     from scrppl.models.data import extract_view_data
     from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED, fit_hierarchical
     from scrppl.models.io import model_path, save_posterior
     from scrppl.models.mcmc import SamplerConfig
     from scrppl.planning import PlannerConfig
     from scrppl.sim.experiment import run_experiment
+    from scrppl.sim.simulator import make_trials
     from scrppl.sim.study import load_methods, study_planners
 
     k_fit, k_trials, k_run = jax.random.split(key, 3)
@@ -417,23 +419,35 @@ def run_point(
     t1 = time.perf_counter()
     planners = study_planners(PlannerConfig("sampled", "joint", n_samples=settings.n_samples))
 
+    loaded = {}
+
     def experiment(k_t, k_r, n):
-        methods, _ = load_methods(
-            k_t, models_dir, table, family, target, n,
-            kinds=("hierarchical",), max_draws=settings.max_draws,
-        )  # fmt: skip
-        name = (
-            "hierarchical+instance" if "hierarchical+instance" in methods else next(iter(methods))
-        )
+        if not loaded:  # the model is read once per point; each block draws its own trials
+            methods, used = load_methods(
+                k_t, models_dir, table, family, target, n,
+                kinds=("hierarchical",), max_draws=settings.max_draws,
+            )  # fmt: skip
+            name = (
+                "hierarchical+instance"
+                if "hierarchical+instance" in methods
+                else next(iter(methods))
+            )
+            loaded.update(name=name, method=methods[name], transform=used["hierarchical"])
+        else:
+            trials = make_trials(
+                k_t, table, family, target, n,
+                transform=lambda raw: transforms.apply(loaded["transform"], raw),
+            )  # fmt: skip
+            loaded["method"] = loaded["method"]._replace(trials=trials)
         ds = run_experiment(
             k_r,
-            {name: methods[name]},
+            {loaded["name"]: loaded["method"]},
             planners,
             category_names=table["category"].values.tolist(),
             progress=progress,
             chunk_size=2048,
         )
-        return ds, methods[name].filter
+        return ds, loaded["method"].filter
 
     if settings.half_width > 0:
         # blocks until the paired interval is narrow enough (see SweepSettings.half_width)
