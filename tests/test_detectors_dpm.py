@@ -20,7 +20,15 @@ from scrppl.detectors.dpm import (
     distance_transform,
     hog_features,
 )
-from scrppl.detectors.dpm.latent_svm import box_iou, initial_parts, svm_objective
+from scrppl.detectors.dpm.latent_svm import (
+    TrainingWindow,
+    _mine_window,
+    box_iou,
+    full_objective,
+    initial_parts,
+    negative_window_scan,
+    svm_objective,
+)
 from scrppl.detectors.dpm.model import (
     Component,
     StarModel,
@@ -328,6 +336,29 @@ def test_latent_svm_objective_decreases(trained_dpm):
     assert len(obj) == SMALL["rounds"] + 1
     assert obj[-1] < obj[0]
     assert min(obj[1:]) < obj[0]
+
+
+def test_one_negative_scan_serves_objective_and_threshold(trained_dpm, toy_data):
+    """fit scans each negative window once: its hinge is the mining pass's, its best the window's score."""
+    _, (test_pos, test_neg) = toy_data
+    model = trained_dpm.model_
+    prepared = [trained_dpm.prepare(t.image, t.box) for t in test_neg[:3]]
+    windows = [TrainingWindow(p) for prep in prepared for p in prep.pyramids]
+    hinges = []
+    for prep in prepared:
+        scans = [negative_window_scan(model, pyr) for pyr in prep.pyramids]
+        for (hinge, _), pyr in zip(scans, prep.pyramids, strict=True):
+            assert hinge == _mine_window(model, pyr, 0, 0)[0]
+            hinges.append(hinge)
+        assert max(best for _, best in scans) == trained_dpm.score_prepared(prep)
+    pos = trained_dpm.prepare(test_pos[0].image, test_pos[0].box)
+    (ox, oy), (x0, y0, x1, y1) = pos.pyramid.offset, test_pos[0].box
+    positives = [TrainingWindow(pos.pyramid, (x0 - ox, y0 - oy, x1 - ox, y1 - oy))]
+    c, overlap = trained_dpm.hyperparameters["C"], trained_dpm.hyperparameters["overlap"]
+    scanned = full_objective(model, positives, windows, c, overlap)
+    assert full_objective(model, positives, windows, c, overlap, negative_hinges=hinges) == scanned
+    with pytest.raises(ValueError, match="negative_hinges has 1 entries for"):
+        full_objective(model, positives, windows, c, overlap, negative_hinges=hinges[:1])
 
 
 def test_dpm_separates_two_categories(trained_dpm, toy_data):

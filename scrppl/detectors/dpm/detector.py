@@ -42,7 +42,9 @@ from scrppl.detectors.dpm.latent_svm import (
     TrainingHistory,
     TrainingWindow,
     box_iou,
+    full_objective,
     initial_parts,
+    negative_window_scan,
     train_latent_svm,
 )
 from scrppl.detectors.dpm.model import Component, StarModel, pyramid_scores, root_boxes
@@ -223,9 +225,7 @@ class DeformablePartModel(Detector):
             for ls in row:
                 if ls is not None and ls.score.size:
                     best = max(best, float(ls.score.max()))
-        if not np.isfinite(best):
-            raise ValueError(f"window too small for the {self.target!r} model's root filters")
-        return best
+        return _finite_best(best, self.target)
 
     def detect(
         self, image: np.ndarray, box: Sequence[float], threshold: float | None = None
@@ -359,6 +359,24 @@ class DeformablePartModel(Detector):
                     cache_limit=int(hp["cache_limit"]),
                     add_parts=add_parts if n_parts > 0 else None,
                     progress=lambda _msg: bar.update(),
+                    final_objective=False,
+                )
+                # one scan of every negative window gives both the final objective's negative term
+                # and the window's score for the threshold (the same pyramid_scores either would make)
+                scans = [
+                    [negative_window_scan(model, pyr) for pyr in prep.pyramids]
+                    for prep in neg_prepared
+                ]
+                hinges = [hinge for scan in scans for hinge, _ in scan]
+                history.objective.append(
+                    full_objective(
+                        model,
+                        pos_windows,
+                        neg_windows,
+                        float(hp["C"]),
+                        float(hp["overlap"]),
+                        negative_hinges=hinges,
+                    )
                 )
         finally:
             bar.close()
@@ -368,7 +386,7 @@ class DeformablePartModel(Detector):
         pos_scores = [
             self.score_prepared(PreparedWindow(w.pyramid, settings, w.mirror)) for w in pos_windows
         ]
-        neg_scores = [self.score_prepared(prep) for prep in neg_prepared]
+        neg_scores = [_finite_best(max(best for _, best in scan), self.target) for scan in scans]
         self.threshold_ = _equal_error_threshold(np.asarray(pos_scores), np.asarray(neg_scores))
         return self
 
@@ -483,6 +501,13 @@ def _background_crops(
         if box_iou(crop_box, img.box) < 0.2:
             crops.append(arr[y0 : y0 + ch, x0 : x0 + cw])
     return crops
+
+
+def _finite_best(best: float, target: str) -> float:
+    """A window's best score, refused when no root filter fitted the window."""
+    if not np.isfinite(best):
+        raise ValueError(f"window too small for the {target!r} model's root filters")
+    return best
 
 
 def _equal_error_threshold(pos: np.ndarray, neg: np.ndarray) -> float:

@@ -47,6 +47,7 @@ __all__ = [
     "optimise",
     "best_positive_placement",
     "full_objective",
+    "negative_window_scan",
     "train_latent_svm",
     "initial_parts",
     "box_iou",
@@ -256,10 +257,17 @@ def _mine_window(
         the ``max_per_window`` highest-scoring positions (violating or not) as
         ``((window_id, component, level, y, x), score)``, best first.
     """
+    return _mine_rows(pyramid_scores(model, pyr), window_id, max_per_window)
+
+
+def _mine_rows(
+    rows: list, window_id: int, max_per_window: int
+) -> tuple[float, int, list[tuple[tuple[int, int, int, int, int], float]]]:
+    """:func:`_mine_window` on a window's :func:`pyramid_scores` already computed."""
     hinge = 0.0
     n_viol = 0
     found: list[tuple[tuple[int, int, int, int, int], float]] = []
-    for level, row in enumerate(pyramid_scores(model, pyr)):
+    for level, row in enumerate(rows):
         for c, ls in enumerate(row):
             if ls is None:
                 continue
@@ -310,15 +318,50 @@ def full_objective(
     negatives: Sequence[TrainingWindow],
     C: float,
     overlap: float,
+    *,
+    negative_hinges: Sequence[float] | None = None,
 ) -> float:
-    """The latent-SVM objective ``L(beta)`` over all positives and every negative position."""
+    """The latent-SVM objective ``L(beta)`` over all positives and every negative position.
+
+    ``negative_hinges`` (optional): each negative window's ``sum max(0, 1 + score)`` over its positions,
+    already computed at ``model`` (:func:`negative_window_scan`), in the order of ``negatives``; the
+    negatives are then not scanned again.
+    """
     value = 0.5 * sum(float(w @ w) for w in pack(model))
     for win in positives:
         score, _, _ = best_positive_placement(model, win, overlap)
         value += C * max(0.0, 1.0 - score)
+    if negative_hinges is not None and len(negative_hinges) != len(negatives):
+        raise ValueError(
+            f"negative_hinges has {len(negative_hinges)} entries for {len(negatives)} negative windows"
+        )
     for i, win in enumerate(negatives):
-        value += C * _mine_window(model, win.pyramid, i, 0)[0]
+        hinge = (
+            _mine_window(model, win.pyramid, i, 0)[0]
+            if negative_hinges is None
+            else negative_hinges[i]
+        )
+        value += C * hinge
     return value
+
+
+def negative_window_scan(model: StarModel, pyramid: HogPyramid) -> tuple[float, float]:
+    """One scan of a negative window: its hinge sum (the objective's term) and its best score.
+
+    Returns
+    -------
+    hinge, best
+        ``sum max(0, 1 + score)`` over every (component, level, position), as :func:`full_objective`
+        adds it, and the largest score (``-inf`` when no root fits), as the detector's
+        ``score_prepared`` takes it: one pass of :func:`pyramid_scores` serves both.
+    """
+    rows = pyramid_scores(model, pyramid)
+    best = -np.inf
+    for row in rows:
+        for ls in row:
+            if ls is not None and ls.score.size:
+                best = max(best, float(ls.score.max()))
+    return _mine_rows(rows, 0, 0)[0], best
 
 
 def initial_parts(root: np.ndarray, n_parts: int, part_size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -383,6 +426,7 @@ def train_latent_svm(
     latent_components: bool = True,
     add_parts: Callable[[StarModel], StarModel] | None = None,
     progress: Callable[[str], None] | None = None,
+    final_objective: bool = True,
 ) -> tuple[StarModel, TrainingHistory]:
     """Train a star model by the latent-SVM coordinate descent with hard-negative mining.
 
@@ -409,6 +453,10 @@ def train_latent_svm(
         Function turning the stage-1 root model into the model with parts.
     progress
         Called with a short message after each step (e.g. to advance a progress bar).
+    final_objective
+        Append the full objective after the last round to the history (a scan of every negative
+        window). A caller that scans the negatives anyway can leave it out and append
+        ``full_objective(..., negative_hinges=...)`` itself, as the detector's ``fit`` does.
 
     Returns
     -------
@@ -467,7 +515,8 @@ def train_latent_svm(
         )
         history.objective.append(value)
         note("latent round")
-    history.objective.append(full_objective(model, positives, negatives, C, overlap))
+    if final_objective:
+        history.objective.append(full_objective(model, positives, negatives, C, overlap))
     return model, history
 
 
