@@ -65,10 +65,13 @@ def distance_transform_1d(
     n = score.shape[axis]
     lin = np.asarray(linear, dtype=score.dtype)
     quad = np.asarray(quadratic, dtype=score.dtype)
-    pad = [(0, 0)] * score.ndim
-    pad[axis] = (r, r)
-    padded = np.pad(score, pad, constant_values=-np.inf)
+    # score framed by r cells of -inf on both sides of the axis (np.pad's result, without its overhead)
+    padded_shape = list(score.shape)
+    padded_shape[axis] += 2 * r
+    padded = np.full(padded_shape, -np.inf, dtype=score.dtype)
     window = [slice(None)] * score.ndim
+    window[axis] = slice(r, r + n)
+    padded[tuple(window)] = score
     if r > 127:
         raise ValueError(f"max_displacement {r} is too large (at most 127)")
     value = np.full(score.shape, -np.inf, dtype=score.dtype)
