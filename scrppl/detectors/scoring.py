@@ -36,6 +36,7 @@ import numpy as np
 import xarray as xr
 
 from scrppl._io import atomic_path
+from scrppl.detectors.dpm._blas import single_threaded_blas
 from scrppl.responses import empty_response_table, save_response_table, validate_response_table
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -123,6 +124,21 @@ def score_chunk(
     out = np.full((*shape, *grid.shape), np.nan)
     timing = {"load": 0.0, "prepare": 0.0, "score": 0.0}
     rows = dataset.select(category=category, instance=instance)
+    # every detector's products are small: BLAS single-threaded for the whole chunk (the detectors ask
+    # for it per window too; switching OpenBLAS's thread count back and forth per window costs more)
+    with single_threaded_blas():
+        _score_rows(dataset, groups, rows, out, timing)
+    return out, timing
+
+
+def _score_rows(
+    dataset: MultiviewDataset,
+    groups: list[tuple[Detector, list]],
+    rows: Any,
+    out: np.ndarray,
+    timing: dict[str, float],
+) -> None:
+    """:func:`score_chunk`'s loop over one instance's views."""
     for _, row in rows.iterrows():
         t0 = time.perf_counter()
         image = dataset.load_image(row)
@@ -138,7 +154,6 @@ def score_chunk(
                 out[fi, ti, a, e, s] = float(det.score_prepared(features))
             timing["prepare"] += t1 - t0
             timing["score"] += time.perf_counter() - t1
-    return out, timing
 
 
 # -- worker processes --------------------------------------------------------------------------------
