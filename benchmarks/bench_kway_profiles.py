@@ -62,6 +62,7 @@ def main() -> None:
     )
     from scrppl.kway.study import _binary_models
     from scrppl.models.mcmc import SamplerConfig
+    from scrppl.models.tails import kway_student_t_expansion
     from scrppl.planning import PlannerConfig
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -72,6 +73,19 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=2000)
     ap.add_argument("--draws", type=int, default=8, help="posterior draws per target detector")
     ap.add_argument("--shared-noise", action="store_true")
+    ap.add_argument(
+        "--nu",
+        type=float,
+        action="append",
+        default=[],
+        help="also the per-category model with a Student-t instance effect of these degrees of freedom "
+        "(repeatable; scrppl.models.tails.kway_student_t_expansion)",
+    )
+    ap.add_argument(
+        "--skip-gaussian",
+        action="store_true",
+        help="only the Student-t variants (the Gaussian ones already recorded)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
@@ -126,22 +140,29 @@ def main() -> None:
         "machine": f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}",
     }
     lpd = {}
-    for name, model in (("profiles", new), ("binary", old)):
-        got = kway_heldout_lpd(model, table, "dpm")
+    variants = [] if args.skip_gaussian else [("profiles", new, None), ("binary", old, None)]
+    for nu in args.nu:
+        expanded, log_weight = kway_student_t_expansion(new, nu)
+        variants.append((f"profiles-t{nu:g}", expanded, log_weight))
+    for name, model, log_weight in variants:
+        t0 = time.perf_counter()
+        got = kway_heldout_lpd(model, table, "dpm", log_weight=log_weight)
         lpd[name] = got
-        scores = []
-        for t, c in enumerate(cats):
-            held = profile_data(table, "dpm", c, split="test")
-            scores.append(
-                sequential_normal_scores(
-                    target_model(model, t),
-                    held["data"].y,
-                    held["data"].observed,
-                    held["category"],
-                ).reshape(-1, table.sizes["azimuth"])
-            )
-        z = np.concatenate(scores)
-        finite = z[np.isfinite(z)]
+        z = None
+        if log_weight is None:  # the sequential check is written for equally weighted draws
+            scores = []
+            for t, c in enumerate(cats):
+                held = profile_data(table, "dpm", c, split="test")
+                scores.append(
+                    sequential_normal_scores(
+                        target_model(model, t),
+                        held["data"].y,
+                        held["data"].observed,
+                        held["category"],
+                    ).reshape(-1, table.sizes["azimuth"])
+                )
+            z = np.concatenate(scores)
+            finite = z[np.isfinite(z)]
         ds = run_kway_experiment(
             jax.random.key(args.seed + 2),
             model,
@@ -150,6 +171,7 @@ def main() -> None:
             categories=cats,
             config=PlannerConfig(objective="class", n_samples=256),
             keep_probabilities=True,
+            log_weight=log_weight,
         )
         cal = kway_calibration(ds)
         s = summarise_kway(ds)
@@ -174,13 +196,17 @@ def main() -> None:
                 k: [round(d[q][k - 1], 4) for q in ("mean", "lo", "hi")] for k in STEPS
             },
             "per_instance_random_correct_after_1_and_8": per,
-            "sequential_check": {
+            "sequential_check": None
+            if z is None
+            else {
                 "mean_square_by_view": [
                     round(float(np.nanmean(z[:, j] ** 2)), 3) for j in range(z.shape[1])
                 ],
                 "share_abs_above_3": round(float(np.mean(np.abs(finite) > 3)), 4),
                 "kurtosis": round(float(np.mean(finite**4) / np.mean(finite**2) ** 2), 2),
             },
+            "draws_per_target": int(model.mu.shape[1]),
+            "seconds": None,
             "ece_top_after_1_2_4": {
                 m: [round(float(x), 4) for x in cal["ece_top"].sel({"method": m}).values]
                 for m in ("random", "planning", "one_vs_rest")
@@ -190,13 +216,22 @@ def main() -> None:
                 for m in ("random", "planning", "one_vs_rest")
             },
         }
+        out[name]["seconds"] = round(time.perf_counter() - t0, 1)
         print(name, json.dumps(out[name]["accuracy"]), out[name]["heldout_lpd_total"])
-    diff = lpd["profiles"]["lpd"] - lpd["binary"]["lpd"]
-    out["heldout_lpd_per_view_profiles_minus_binary"] = {
-        t: {c: round(float(diff.sel(target=t, category=c)), 3) for c in cats} for t in cats
-    }
+    if "profiles" in lpd:
+        diff = lpd["profiles"]["lpd"] - lpd["binary"]["lpd"]
+        out["heldout_lpd_per_view_profiles_minus_binary"] = {
+            t: {c: round(float(diff.sel(target=t, category=c)), 3) for c in cats} for t in cats
+        }
     record = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    record[f"{run.get('profile', 'unknown')}/{variant}"] = out
+    key = f"{run.get('profile', 'unknown')}/{variant}"
+    if args.skip_gaussian:  # add the Student-t variants to the Gaussian record
+        record.setdefault(key, {}).update({k: out[k] for k in out if k.startswith("profiles-t")})
+        record[key][f"student_t_trials_{args.trials}_draws_{args.draws}"] = {
+            k: out[k] for k in ("trials", "draws", "seed", "machine")
+        }
+    else:
+        record[key] = out
     RESULTS.write_text(json.dumps(record, indent=1) + "\n")
     print(f"wrote {RESULTS}")
 

@@ -639,6 +639,47 @@ def test_experiment_on_a_separable_table(rng):
 
 
 @pytest.mark.slow
+@pytest.mark.slow  # three experiments compiled (about 40 s): make test-slow (CI)
+def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
+    """Draws (a, b) weighted (3/4, 1/4) are the draws (a, a, a, b): the same filter, so the same numbers."""
+    k, n_i, a = 3, 4, 4
+    cats = ["x", "y", "z"]
+    from scrppl.responses import empty_response_table
+    from scrppl.views import ViewGrid
+
+    split = np.array([["fit", "fit", "test", "test"]] * k)
+    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
+    table["score"].values[:] = rng.normal(0, 1.0, size=(1, k, k, n_i, a, 1, 1))
+    trials = make_kway_trials(jax.random.key(0), table, "d", 12)
+    model, _ = random_kway(rng, t=k, n=2, k=k, a=a)
+    repeated = KwayModel(*(x[:, [0, 0, 0, 1]] for x in model))
+    opts = dict(config=PlannerConfig(n_samples=16), n_steps=3, keep_probabilities=True)
+    got = run_kway_experiment(
+        jax.random.key(1), model, trials, log_weight=np.log([0.75, 0.25]), **opts
+    )
+    want = run_kway_experiment(jax.random.key(1), repeated, trials, **opts)
+    # random views are the same draws of the key; the planner's sampled responses differ in number
+    for name in ("p_class", "p_true", "class_entropy"):
+        np.testing.assert_allclose(
+            got[name].sel(method="random"), want[name].sel(method="random"), atol=1e-5
+        )
+    np.testing.assert_array_equal(
+        got["azimuth"].sel(method="random"), want["azimuth"].sel(method="random")
+    )
+    # the weights matter: equal weights on (a, b) give other probabilities
+    equal = run_kway_experiment(jax.random.key(1), model, trials, **opts)
+    assert (
+        np.abs(equal["p_class"].sel(method="random") - got["p_class"].sel(method="random")).max()
+        > 1e-3
+    )
+    with pytest.raises(ValueError, match="needs the instance-aware filter"):
+        run_kway_experiment(
+            jax.random.key(1), model, trials, filter="naive_bayes", log_weight=np.log([0.5, 0.5])
+        )
+    with pytest.raises(ValueError, match=r"log_weight has shape \(4,\) but the model has 2 draws"):
+        run_kway_experiment(jax.random.key(1), model, trials, log_weight=np.zeros(4))
+
+
 def test_fit_kway_recovers_the_category_means_and_round_trips(tmp_path):
     """Short NUTS fits of a table with known means: the K-way reading recovers them; saved fits give
     the same stack; the stack survives save/load."""

@@ -289,6 +289,32 @@ def test_heldout_scores_mix_posterior_draws_by_their_densities(rng):
         np.testing.assert_allclose(sc["lpd_single"][i], single.mean(), rtol=1e-4)
 
 
+def test_heldout_scores_with_weighted_draws_equal_repeated_draws(rng):
+    # Draws (a, b) weighted (3/4, 1/4) are the mixture of the draws (a, a, a, b) with equal weights: every
+    # score (single and joint densities, interval coverage) must agree.
+    mu = rng.normal(size=(2, 2, A, E, S))
+    sigma = rng.uniform(0.4, 1.0, size=(2, 2, A, E, S))
+    tau = rng.uniform(0.2, 0.9, size=(2, 2))
+    repeat = [0, 0, 0, 1]
+    weighted = ResponseModel(*(jnp.asarray(x) for x in (mu, sigma, tau)))
+    repeated = ResponseModel(*(jnp.asarray(x[repeat]) for x in (mu, sigma, tau)))
+    y = rng.normal(size=(3, A, E, S))
+    obs = rng.random(y.shape) > 0.2
+    data = make_view_data(np.where(obs, y, np.nan), [1, 0, 1], observed=obs)
+    got = heldout_scores(weighted, data, np.log([0.75, 0.25]))
+    want = heldout_scores(repeated, data)
+    assert got.keys() == want.keys()
+    for name in want:
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-6, err_msg=name)
+    # equal weights: the unweighted scores
+    equal = heldout_scores(weighted, data, np.log([0.5, 0.5]))
+    plain = heldout_scores(weighted, data)
+    for name in plain:
+        np.testing.assert_allclose(equal[name], plain[name], rtol=1e-6, err_msg=name)
+    with pytest.raises(ValueError, match=r"log_weight has shape \(3,\) but the model has 2 draws"):
+        heldout_scores(weighted, data, np.zeros(3))
+
+
 def test_diagnostics(rng):
     good = az.from_dict(
         {

@@ -186,8 +186,26 @@ def make_kway_trials(
 # one trial, compiled
 
 
-def _trial(key, model, binary, responses, available, pose, start, *, filter, config, n_steps, ovr):
+def _trial(
+    key,
+    model,
+    binary,
+    responses,
+    available,
+    pose,
+    start,
+    log_weight,
+    *,
+    filter,
+    config,
+    n_steps,
+    ovr,
+):
     """One trial: K-way filter + planner; with ``ovr`` also the ``K`` binary filters on the same views.
+
+    ``log_weight`` (``None`` or ``(N,)``): the draws' log weights, for the instance-aware filter only
+    (its starting log evidence, :func:`scrppl.models.tails.kway_weighted_init`; the updates and the
+    planner are then unchanged).
 
     Returns per step the view ``(3,)``, whether it was observed, the K-way ``p(k | F)`` ``(K,)`` and the
     binary filters' ``log p(present | F)`` ``(T,)`` (zeros without ``ovr``).
@@ -219,7 +237,13 @@ def _trial(key, model, binary, responses, available, pose, start, *, filter, con
         return (belief, bb, visited, view), out
 
     bb0 = jax.vmap(lambda m: B.init_belief(filter, m))(binary) if ovr else None
-    state0 = (KF.init_belief(filter, model), bb0, jnp.zeros(avail_r.shape, bool), start)
+    if log_weight is None:
+        belief0 = KF.init_belief(filter, model)
+    else:
+        from scrppl.models.tails import kway_weighted_init
+
+        belief0 = kway_weighted_init(filter, model, log_weight)
+    state0 = (belief0, bb0, jnp.zeros(avail_r.shape, bool), start)
     state, first = observe(state0, start, jnp.asarray(True))
 
     def step(state, j):
@@ -235,14 +259,25 @@ def _trial(key, model, binary, responses, available, pose, start, *, filter, con
 
 @lru_cache(maxsize=16)
 def _runner(filter: str, config: PlannerConfig, n_steps: int, ovr: bool):
-    def chunk(key, first, model, binary, responses, available, pose, start):
+    def chunk(key, first, model, binary, responses, available, pose, start, log_weight):
         index = first + jnp.arange(responses.shape[0])
         keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
 
         def one(args):
             k, r, a, p, s = args
             return _trial(
-                k, model, binary, r, a, p, s, filter=filter, config=config, n_steps=n_steps, ovr=ovr
+                k,
+                model,
+                binary,
+                r,
+                a,
+                p,
+                s,
+                log_weight,
+                filter=filter,
+                config=config,
+                n_steps=n_steps,
+                ovr=ovr,
             )
 
         return jax.lax.map(one, (keys, responses, available, pose, start), batch_size=8)
@@ -250,7 +285,9 @@ def _runner(filter: str, config: PlannerConfig, n_steps: int, ovr: bool):
     return jax.jit(chunk)
 
 
-def _run(key, model, binary, trials, filter, config, n_steps, ovr, chunk_size, progress, desc):
+def _run(
+    key, model, binary, trials, filter, config, n_steps, ovr, chunk_size, progress, desc, log_weight
+):
     n = trials.category.shape[0]
     chunk = min(int(chunk_size), n)
     run = _runner(filter, config, int(n_steps), bool(ovr))
@@ -258,7 +295,7 @@ def _run(key, model, binary, trials, filter, config, n_steps, ovr, chunk_size, p
     outs = []
     for lo in tqdm(range(0, n, chunk), desc=desc, disable=not progress, leave=False):
         sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # the last chunk padded with repeats
-        out = run(key, np.int32(lo), model, binary, *(x[sel] for x in host))
+        out = run(key, np.int32(lo), model, binary, *(x[sel] for x in host), log_weight)
         keep = min(chunk, n - lo)
         outs.append([np.asarray(x)[:keep] for x in out])
     return [np.concatenate(parts) for parts in zip(*outs, strict=True)]
@@ -306,6 +343,7 @@ def run_kway_experiment(
     keep_probabilities: bool = True,
     chunk_size: int = 160,
     progress: bool = False,
+    log_weight=None,
 ) -> xr.Dataset:
     """Run entropy planning, random views and (given ``binary``) the one-vs-rest baseline on ``trials``.
 
@@ -338,6 +376,11 @@ def run_kway_experiment(
         Trials per compiled call.
     progress
         Progress bars.
+    log_weight
+        Optional ``(N,)`` log weights of the model's draws, shared by every target: a model with a
+        Student-t instance effect, :func:`scrppl.models.tails.kway_student_t_expansion`. Only with the
+        instance-aware filter, where the weights are its starting log evidence and its updates and the
+        planner are unchanged. The one-vs-rest baseline keeps its Gaussian binary models.
 
     Returns
     -------
@@ -379,8 +422,23 @@ def run_kway_experiment(
         raise ValueError(
             f"binary models must have shape (T={n_t}, N, 2, A, E, S), got {np.shape(binary.mu)}"
         )
+    if log_weight is not None:
+        if filter != "instance":
+            raise ValueError(
+                f"log_weight (weighted draws) needs the instance-aware filter, got filter {filter!r}; "
+                f"for naive Bayes use scrppl.models.tails.kway_weighted_naive_bayes_update"
+            )
+        from scrppl.models.tails import _check_weights
+
+        log_weight = _check_weights(model, log_weight, draw_axis=1)
     dummy = binary if binary is not None else ResponseModel(*(x[:, :, :2] for x in model))
-    opts = dict(filter=filter, n_steps=n_steps, chunk_size=chunk_size, progress=progress)
+    opts = dict(
+        filter=filter,
+        n_steps=n_steps,
+        chunk_size=chunk_size,
+        progress=progress,
+        log_weight=log_weight,
+    )
     runs = {
         "planning": _run(
             key, model, dummy, trials, config=plan, ovr=False, desc="kway/planning", **opts

@@ -564,7 +564,9 @@ def fit_kway_profiles(
     return KwayFit(model, info), trees
 
 
-def kway_heldout_lpd(model, table: xr.Dataset, detector: str, split: str = "test") -> xr.Dataset:
+def kway_heldout_lpd(
+    model, table: xr.Dataset, detector: str, split: str = "test", log_weight=None
+) -> xr.Dataset:
     """Held-out joint log predictive density of a K-way model, per target detector and true category.
 
     For every target detector ``t`` and every instance ``i`` of ``split``, the log density of all its
@@ -582,6 +584,9 @@ def kway_heldout_lpd(model, table: xr.Dataset, detector: str, split: str = "test
         The family.
     split
         The instances scored (default the held-out ``"test"`` split).
+    log_weight
+        Optional ``(N,)`` log weights of the draws, shared by every target (the Student-t instance
+        effect of :func:`scrppl.models.tails.kway_student_t_expansion`); default equal weights.
 
     Returns
     -------
@@ -608,7 +613,9 @@ def kway_heldout_lpd(model, table: xr.Dataset, detector: str, split: str = "test
         pd = profile_data(table, detector, target, split=split)
         d: ViewData = pd["data"]
         scored = heldout_scores(
-            target_model(model, t), ViewData(d.y, d.observed, pd["category"], d.neg_onehot)
+            target_model(model, t),
+            ViewData(d.y, d.observed, pd["category"], d.neg_onehot),
+            log_weight,
         )
         per_view = scored["lpd_joint"]
         for c in range(k):

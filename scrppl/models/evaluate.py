@@ -46,19 +46,19 @@ __all__ = ["heldout_scores", "evaluate_models", "sequential_normal_scores", "pre
 
 
 @jax.jit
-def _joint_and_cdf(mu, sigma, tau, y, observed, o):
-    """Per draw: joint log density of every instance; summed over draws: predictive CDF values."""
+def _joint_and_cdf(mu, sigma, tau, y, observed, o, weight):
+    """Per draw: joint log density of every instance; the draws' CDF values summed, each times its weight."""
 
     def one(cdf_sum, draw):
-        m, sd, t = draw[0][o], draw[1][o], draw[2][o]
+        m, sd, t, w = draw[0][o], draw[1][o], draw[2][o], draw[3]
         joint = instance_log_marginal(y, m, sd, t, observed)
         z = (y - m) / jnp.sqrt(sd**2 + t[:, None, None, None] ** 2)
-        return cdf_sum + norm.cdf(z), joint
+        return cdf_sum + w * norm.cdf(z), joint
 
-    return jax.lax.scan(one, jnp.zeros(y.shape, mu.dtype), (mu, sigma, tau))[::-1]
+    return jax.lax.scan(one, jnp.zeros(y.shape, mu.dtype), (mu, sigma, tau, weight))[::-1]
 
 
-def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray]:
+def heldout_scores(model: ResponseModel, data: ViewData, log_weight=None) -> dict[str, np.ndarray]:
     """Per-instance held-out scores of a viewpoint model.
 
     Parameters
@@ -67,6 +67,9 @@ def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray
         A ``ResponseModel`` on the same transformed scale as ``data``.
     data
         Held-out responses (``split="test"``).
+    log_weight
+        Optional ``(N,)`` log weights of the draws (summing to one), e.g. the Student-t instance effect
+        of :func:`scrppl.models.tails.student_t_expansion`; default equal weights ``1 / N``.
 
     Returns
     -------
@@ -87,13 +90,27 @@ def heldout_scores(model: ResponseModel, data: ViewData) -> dict[str, np.ndarray
     e = jnp.arange(E)[None, None, :, None]
     s = jnp.arange(S)[None, None, None, :]
     oo = o[:, None, None, None]
-    single = jax.jit(log_prob)(model, y, oo, a, e, s)  # (I, A, E, S)
+    n_draw = model.mu.shape[0]
+    if log_weight is None:
+        single = jax.jit(log_prob)(model, y, oo, a, e, s)  # (I, A, E, S)
+        weight = jnp.ones(n_draw, model.mu.dtype)
+    else:
+        from scrppl.models.tails import _check_weights, weighted_log_prob
+
+        log_weight = _check_weights(model, log_weight)
+        single = jax.jit(weighted_log_prob)(model, log_weight, y, oo, a, e, s)
+        weight = jnp.exp(log_weight).astype(model.mu.dtype)
     lpd_single = np.where(obs, np.asarray(single), 0.0).reshape(len(n_views), -1).sum(1) / n_views
 
-    n_draw = model.mu.shape[0]
-    joint_draws, cdf = _joint_and_cdf(model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o)
-    joint = logsumexp(joint_draws, axis=0) - math.log(n_draw)
-    pit = np.asarray(cdf) / n_draw
+    joint_draws, cdf = _joint_and_cdf(
+        model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o, weight
+    )
+    if log_weight is None:
+        joint = logsumexp(joint_draws, axis=0) - math.log(n_draw)
+        pit = np.asarray(cdf) / n_draw
+    else:
+        joint = logsumexp(joint_draws + log_weight[:, None], axis=0)
+        pit = np.asarray(cdf)
     out = {"lpd_single": lpd_single, "lpd_joint": np.asarray(joint) / n_views, "n_views": n_views}
     for q in (50, 90):
         inside = obs & (np.abs(pit - 0.5) < q / 200.0)
