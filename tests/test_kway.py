@@ -661,15 +661,25 @@ def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
     # random views are the same draws of the key; the planner's sampled responses differ in number
     for name in ("p_class", "p_true", "class_entropy"):
         np.testing.assert_allclose(
-            got[name].sel(method="random"), want[name].sel(method="random"), atol=1e-5
+            got[name].sel({"method": "random"}), want[name].sel({"method": "random"}), atol=1e-5
         )
     np.testing.assert_array_equal(
-        got["azimuth"].sel(method="random"), want["azimuth"].sel(method="random")
+        got["azimuth"].sel({"method": "random"}), want["azimuth"].sel({"method": "random"})
+    )
+    # without the planning method: only the random views, the same numbers
+    alone = run_kway_experiment(
+        jax.random.key(1), model, trials, log_weight=np.log([0.75, 0.25]), planned=False, **opts
+    )
+    assert alone["method"].values.tolist() == ["random"]
+    xr.testing.assert_identical(
+        alone["p_class"].sel({"method": "random"}), got["p_class"].sel({"method": "random"})
     )
     # the weights matter: equal weights on (a, b) give other probabilities
     equal = run_kway_experiment(jax.random.key(1), model, trials, **opts)
     assert (
-        np.abs(equal["p_class"].sel(method="random") - got["p_class"].sel(method="random")).max()
+        np.abs(
+            equal["p_class"].sel({"method": "random"}) - got["p_class"].sel({"method": "random"})
+        ).max()
         > 1e-3
     )
     with pytest.raises(ValueError, match="needs the instance-aware filter"):

@@ -344,6 +344,7 @@ def run_kway_experiment(
     chunk_size: int = 160,
     progress: bool = False,
     log_weight=None,
+    planned: bool = True,
 ) -> xr.Dataset:
     """Run entropy planning, random views and (given ``binary``) the one-vs-rest baseline on ``trials``.
 
@@ -381,6 +382,9 @@ def run_kway_experiment(
         Student-t instance effect, :func:`scrppl.models.tails.kway_student_t_expansion`. Only with the
         instance-aware filter, where the weights are its starting log evidence and its updates and the
         planner are unchanged. The one-vs-rest baseline keeps its Gaussian binary models.
+    planned
+        Run the ``planning`` method (default); ``False`` runs only random views (and one-vs-rest on
+        them), e.g. for a model whose many draws make planning slow.
 
     Returns
     -------
@@ -439,15 +443,16 @@ def run_kway_experiment(
         progress=progress,
         log_weight=log_weight,
     )
-    runs = {
-        "planning": _run(
+    runs = {}
+    if planned:
+        runs["planning"] = _run(
             key, model, dummy, trials, config=plan, ovr=False, desc="kway/planning", **opts
         )
-    }
     runs["random"] = _run(
         key, model, dummy, trials, config=rand, ovr=binary is not None, desc="kway/random", **opts
     )
-    methods = ["planning", "random"] + (["one_vs_rest"] if binary is not None else [])
+    methods = (["planning"] if planned else []) + ["random"]
+    methods += ["one_vs_rest"] if binary is not None else []
     cat = np.asarray(trials.category)
     per = {}
     for m in methods:
