@@ -82,6 +82,13 @@ def main() -> None:
         "(repeatable; scrppl.models.tails.kway_student_t_expansion)",
     )
     ap.add_argument(
+        "--nu-scan",
+        type=str,
+        default=None,
+        help="comma-separated degrees of freedom: only the joint LPD of the per-category model with a "
+        "Student-t instance effect on the fit and test instances, for each (and the Gaussian)",
+    )
+    ap.add_argument(
         "--plan-student-t",
         action="store_true",
         help="also the planning method for the Student-t variants (their N x Q draws make it slow)",
@@ -144,6 +151,26 @@ def main() -> None:
         "diagnostics_ok": {c: json.loads(trees[c].attrs["diagnostics"])["ok"] for c in cats},
         "machine": f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}",
     }
+    if args.nu_scan:
+        scan = {}
+        for nu in [None] + [float(v) for v in args.nu_scan.split(",")]:
+            model, log_weight = (new, None) if nu is None else kway_student_t_expansion(new, nu)
+            scan["gaussian" if nu is None else f"{nu:g}"] = {
+                split: round(
+                    float(
+                        kway_heldout_lpd(model, table, "dpm", split, log_weight)["lpd_sum"].sum()
+                    ),
+                    2,
+                )
+                for split in ("fit", "test")
+            }
+            print("nu", nu, scan)
+        record = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        key = f"{run.get('profile', 'unknown')}/{variant}"
+        record.setdefault(key, {})["student_t_nu_scan_joint_lpd_fit_and_test"] = scan
+        RESULTS.write_text(json.dumps(record, indent=1) + "\n")
+        print(f"wrote {RESULTS}")
+        return
     lpd = {}
     variants = [] if args.skip_gaussian else [("profiles", new, None), ("binary", old, None)]
     for nu in args.nu:
