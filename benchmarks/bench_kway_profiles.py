@@ -264,8 +264,13 @@ def main() -> None:
         record[key][f"student_t_trials_{args.trials}_draws_{args.draws}"] = {
             k: out[k] for k in ("trials", "draws", "seed", "machine")
         }
-    else:
-        record[key] = out
+    else:  # a new Gaussian record keeps the Student-t numbers recorded beside it
+        kept = {
+            k: v
+            for k, v in record.get(key, {}).items()
+            if "student_t" in k or k.startswith("profiles-t")
+        }
+        record[key] = {**kept, **out}
     RESULTS.write_text(json.dumps(record, indent=1) + "\n")
     print(f"wrote {RESULTS}")
 
