@@ -671,6 +671,7 @@ def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
         jax.random.key(1), model, trials, log_weight=np.log([0.75, 0.25]), planned=False, **opts
     )
     assert alone["method"].values.tolist() == ["random"]
+    assert (alone.attrs["weighted_draws"], want.attrs["weighted_draws"]) == (1, 0)
     xr.testing.assert_identical(
         alone["p_class"].sel({"method": "random"}), got["p_class"].sel({"method": "random"})
     )

@@ -496,6 +496,7 @@ def run_kway_experiment(
         "filter": filter,
         "planner_config": json.dumps(plan._asdict()),
         "n_draws": int(model.n_draws),
+        "weighted_draws": int(log_weight is not None),
         "confidence_threshold": M.CONFIDENCE,
     }
     return xr.Dataset(data, coords=coords, attrs=attrs)
