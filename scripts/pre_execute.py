@@ -29,12 +29,15 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
 import yaml
 
 BOOK = Path(__file__).absolute().parents[1] / "book"  # not resolved (book/exercises is a link)
+#: The recorded build: its ``executed_pages_s`` are the costs ``--longest-first`` orders the pages by.
+RECORD = BOOK.parent / "benchmarks" / "results" / "book.json"
 
 
 def md_config():
@@ -132,6 +135,43 @@ def _lower_kernels(interval: float = 0.2) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
+def page_name(page: Path) -> str:
+    """The page's name in the book (its Sphinx document name), else its path without the suffix."""
+    return str(
+        page.with_suffix("").relative_to(BOOK)
+        if page.is_relative_to(BOOK)
+        else page.with_suffix("")
+    )
+
+
+def longest_first(pages: list[Path], costs: dict[str, float]) -> list[Path]:
+    """``pages`` by recorded cost, most expensive first (unknown pages first too: they may be long).
+
+    Handed to ``--jobs`` workers in this order, the pages are scheduled longest-processing-time first,
+    whose finish is within 4/3 of the best possible.
+    """
+    return sorted(pages, key=lambda p: (-costs.get(page_name(p.absolute()), float("inf")), str(p)))
+
+
+def recorded_costs(record: Path = RECORD) -> dict[str, float]:
+    """Execution seconds per page of the recorded build (empty if there is no readable record)."""
+    try:
+        costs = json.loads(record.read_text()).get("executed_pages_s", {})
+        return {str(k): float(v) for k, v in costs.items()}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return {}
+
+
+def _read_times(path: Path | None) -> dict[str, float]:
+    if path is None or not path.exists():
+        return {}
+    try:
+        times = json.loads(path.read_text())
+    except ValueError:
+        return {}
+    return times if isinstance(times, dict) else {}
+
+
 def _write_times(path: Path, times: dict[str, float]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -154,48 +194,85 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="run this process and its kernels at the lowest CPU priority (lowest_priority)",
     )
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="pages executed at once, each by its own kernel (not with --background)",
+    )
+    ap.add_argument(
+        "--longest-first",
+        action="store_true",
+        help="take the pages most expensive first, by the recorded build's page times (book.json)",
+    )
     ap.add_argument("pages", type=Path, nargs="+")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs must be at least 1, not {args.jobs}")
+    if args.background and args.jobs > 1:
+        ap.error("--background executes one page at a time (its stop signal waits for one page)")
     if args.background:
         lowest_priority(os.getpid())
         _lower_kernels()
     cache = get_cache(str(args.cache))
     config, timeout = md_config(), execute_timeout()
-    times, failed = {}, []
+    # pages listed by an earlier run into the same cache stay listed
+    times, failed = _read_times(args.times), []
     stop = _Stop()
     signal.signal(signal.SIGUSR1, stop)
     if args.times is not None:
         _write_times(args.times, times)
-    for page in args.pages:
-        page = page.absolute()  # not resolved: an exercise page is a link to notebooks/
+    pages = [p.absolute() for p in args.pages]  # not resolved: an exercise page links to notebooks/
+    if args.longest_first:
+        pages = longest_first(pages, recorded_costs())
+    lock = threading.Lock()  # one page at a time into the cache and the times file
+
+    def execute(page: Path) -> None:
         nb = read_page(page, config)
         t0 = time.perf_counter()
         result = single_nb_execution(
             nb, cwd=str(page.parent), timeout=timeout, allow_errors=False, meta_override=True
         )
-        # the page's name in the book (its Sphinx document name), else its path
-        name = str(
-            page.with_suffix("").relative_to(BOOK)
-            if page.is_relative_to(BOOK)
-            else page.with_suffix("")
-        )
+        name = page_name(page)
         if result.err is not None:
-            failed.append(name)
+            with lock:
+                failed.append(name)
             print(f"[pre-execute] {name}: FAILED\n{result.exc_string}", file=sys.stderr, flush=True)
-            continue
-        stop.writing = True  # a SIGUSR1 now waits until the page is cached and listed
-        cache.cache_notebook_bundle(
-            CacheBundleIn(nb, str(page), data={"execution_seconds": result.time}),
-            check_validity=False,
-            overwrite=True,
-        )
-        times[name] = round(result.time, 2)
-        if args.times is not None:
-            _write_times(args.times, times)
-        stop.writing = False
+            return
+        with lock:
+            stop.writing = True  # a SIGUSR1 now waits until the page is cached and listed
+            cache.cache_notebook_bundle(
+                CacheBundleIn(nb, str(page), data={"execution_seconds": result.time}),
+                check_validity=False,
+                overwrite=True,
+            )
+            times[name] = round(result.time, 2)
+            if args.times is not None:
+                _write_times(args.times, times)
+            stop.writing = False
         print(f"[pre-execute] {name}: {time.perf_counter() - t0:.1f} s", flush=True)
         if stop.pending:
             stop.now()
+
+    if args.jobs == 1:
+        for page in pages:
+            execute(page)
+    else:
+        queue = list(pages)
+
+        def worker() -> None:
+            while True:
+                with lock:
+                    if not queue:
+                        return
+                    page = queue.pop(0)
+                execute(page)
+
+        threads = [threading.Thread(target=worker) for _ in range(min(args.jobs, len(queue)))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
     return 1 if failed else 0
 
 
