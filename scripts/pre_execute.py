@@ -261,12 +261,18 @@ def main(argv: list[str] | None = None) -> int:
         queue = list(pages)
 
         def worker() -> None:
-            while True:
-                with lock:
-                    if not queue:
-                        return
-                    page = queue.pop(0)
-                execute(page)
+            from jupyter_core.utils import ensure_event_loop
+
+            try:
+                while True:
+                    with lock:
+                        if not queue:
+                            return
+                        page = queue.pop(0)
+                    execute(page)
+            finally:
+                # nbclient ran the pages on an event loop of this thread's own: close it with the thread
+                ensure_event_loop().close()
 
         threads = [threading.Thread(target=worker) for _ in range(min(args.jobs, len(queue)))]
         for t in threads:

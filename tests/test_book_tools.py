@@ -322,3 +322,67 @@ def test_lowest_priority_lowers_a_session_leader_and_its_session_but_never_the_c
             p.kill()
             p.wait()
     pre.lowest_priority(leader.pid)  # a process that has gone: nothing raised
+
+
+def test_longest_first_orders_by_recorded_cost_and_reads_a_missing_or_broken_record_as_none(
+    tmp_path,
+):
+    """make book hands the pages left after the pipeline to two kernels most expensive first (longest
+    processing time first); a page without a recorded time goes first (it may be the longest), and a
+    missing or unreadable record gives no costs rather than an error."""
+    pre = _script("pre_execute")
+    book = pre.BOOK
+    pages = [book / "chapters" / f"{n}.md" for n in ("01-a", "02-b", "03-c", "04-new")]
+    costs = {"chapters/01-a": 5.0, "chapters/02-b": 60.0, "chapters/03-c": 20.0}
+    order = [pre.page_name(p) for p in pre.longest_first(pages, costs)]
+    assert order == ["chapters/04-new", "chapters/02-b", "chapters/03-c", "chapters/01-a"]
+    assert pre.page_name(tmp_path / "x.md") == str(tmp_path / "x")  # outside the book: its path
+    record = tmp_path / "book.json"
+    assert pre.recorded_costs(record) == {}
+    record.write_text("{not json")
+    assert pre.recorded_costs(record) == {}
+    record.write_text(json.dumps({"executed_pages_s": {"chapters/01-a": 3}}))
+    assert pre.recorded_costs(record) == {"chapters/01-a": 3.0}
+    # the record of this checkout names every page the book executes
+    recorded = pre.recorded_costs()
+    for page in sorted((ROOT / "book" / "chapters").glob("[0-9]*.md")):
+        assert f"chapters/{page.stem}" in recorded
+
+
+@pytest.mark.slow  # starts Jupyter kernels (make test-slow, CI)
+def test_pre_execute_in_two_kernels_caches_every_page_and_keeps_the_pages_listed_before(tmp_path):
+    """After the pipeline make book executes the remaining pages two at a time into the cache the
+    background pass filled: every page is cached under the key the build asks for, the pages listed
+    before stay listed, and --background (one page at a time) is refused with --jobs."""
+    from jupyter_cache import get_cache
+    from myst_nb.core.read import read_myst_markdown_notebook
+
+    pre, ext = _script("pre_execute"), _extension()
+    page = PAGE.split("Some prose.")[0]
+    pages = []
+    for i in range(3):
+        p = tmp_path / f"page{i}.md"
+        p.write_text(page.replace("x = 3\n", f"x = 3\ny = {i}\n", 1))
+        pages.append(p)
+    cache_dir, times = tmp_path / "cache", tmp_path / "cache" / "pages.json"
+    cache_dir.mkdir()
+    times.write_text(json.dumps({"exercises/earlier": 1.5}))
+    status = pre.main(
+        ["--jobs", "2", "--cache", str(cache_dir), "--times", str(times)] + [str(p) for p in pages]
+    )
+    assert status == 0
+    listed = json.loads(times.read_text())
+    assert set(listed) == {"exercises/earlier"} | {str(p.with_suffix("")) for p in pages}
+    cache = get_cache(str(cache_dir))
+    for p in pages:
+        told = read_myst_markdown_notebook(
+            ext.with_cache_mode(p.read_text(), str(cache_dir)),
+            config=pre.md_config(),
+            add_source_map=True,
+        )
+        _, merged = cache.merge_match_into_notebook(told)
+        assert [c.execution_count for c in merged.cells if c.cell_type == "code"] == [1]
+    with pytest.raises(SystemExit):
+        pre.main(["--jobs", "2", "--background", "--cache", str(cache_dir), str(pages[0])])
+    with pytest.raises(SystemExit):
+        pre.main(["--jobs", "0", "--cache", str(cache_dir), str(pages[0])])
