@@ -9,6 +9,13 @@ pipeline ends, build-book.sh stops this script (SIGUSR1: nbclient takes SIGTERM 
 page executes): the page being executed is abandoned (its kernel killed, nothing cached) and the build
 executes it, and every page not reached, itself.
 
+After the pipeline, build-book.sh runs it again in the foreground on every page not yet cached (the
+chapters, and the exercise pages the background pass did not reach): ``--jobs 2`` executes two pages at a
+time, each worker taking the next page as soon as it is free, and ``--longest-first`` hands them out most
+expensive first by the recorded build's page times (``benchmarks/results/book.json``). The Sphinx build
+then only reads the cache; before, it executed these pages in its fixed reading slices, which left one
+core idle near the end.
+
 Each page is read with myst-nb's own reader and the book's MyST settings (so jupyter-cache gives it the
 key the build computes), executed in its own folder as the build would, and stored with its execution
 time; ``--times`` (the list of cached pages the build reads) is rewritten after each page. A page that
@@ -18,8 +25,8 @@ The cache is keyed on a page's code cells only, so it is only valid for one buil
 first and the build reads it through ``SCRPPL_BOOK_PREEXECUTED`` (book/_ext/scrppl_preexecuted.py); a
 build without that variable executes every page itself.
 
-Run: ``python scripts/pre_execute.py --cache DIR [--times FILE] PAGE.md [PAGE.md ...]``; exit status 1 if
-a page fails.
+Run: ``python scripts/pre_execute.py --cache DIR [--times FILE] [--jobs N] [--longest-first] PAGE.md ...``;
+exit status 1 if a page fails. A ``--times`` file that exists keeps the pages it lists.
 """
 
 from __future__ import annotations

@@ -5,8 +5,10 @@
    ``SCRPPL_BOOK_PREEXECUTED``. For each page it finished, listed there (``pages.json``), this extension
    sets the page's own myst-nb execution mode to ``cache`` (a ``mystnb`` key in its front matter, read by
    myst-nb as file-level configuration), so the build takes the page's outputs from that cache instead of
-   executing it again. Every other page is executed as ``execute_notebooks`` says (``force``). Without the
-   variable nothing changes.
+   executing it again. When the pipeline ends, make book executes the remaining pages into the same
+   cache, two at a time and most expensive first, so that a build of make book normally executes none.
+   Every page not listed is executed as ``execute_notebooks`` says (``force``). Without the variable
+   nothing changes.
 2. **Reading order.** Sphinx reads pages in fixed slices of the sorted page names, one process per slice,
    so the chapters 01-09 fell in one slice and were the build's critical path. The page names are reordered
    (``env-before-read-docs``) so that each slice gets a similar share of the execution time, estimated from
