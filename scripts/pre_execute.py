@@ -276,7 +276,13 @@ def main(argv: list[str] | None = None) -> int:
                         if not queue:
                             return
                         page = queue.pop(0)
-                    execute(page)
+                    try:
+                        execute(page)
+                    # a page that cannot be read or run is left to the build, which shows why
+                    except Exception as err:
+                        with lock:
+                            failed.append(page_name(page))
+                        print(f"[pre-execute] {page_name(page)}: FAILED ({err!r})", file=sys.stderr)
             finally:
                 # nbclient ran the pages on an event loop of this thread's own: close it with the thread
                 ensure_event_loop().close()

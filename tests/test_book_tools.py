@@ -382,6 +382,20 @@ def test_pre_execute_in_two_kernels_caches_every_page_and_keeps_the_pages_listed
         )
         _, merged = cache.merge_match_into_notebook(told)
         assert [c.execution_count for c in merged.cells if c.cell_type == "code"] == [1]
+    # a page that cannot even be read fails the run (the build then shows why); the others still run
+    missing = tmp_path / "missing.md"
+    args = [
+        "--jobs",
+        "2",
+        "--cache",
+        str(cache_dir),
+        "--times",
+        str(times),
+        str(missing),
+        str(pages[0]),
+    ]
+    assert pre.main(args) == 1
+    assert str(missing.with_suffix("")) not in json.loads(times.read_text())
     with pytest.raises(SystemExit):
         pre.main(["--jobs", "2", "--background", "--cache", str(cache_dir), str(pages[0])])
     with pytest.raises(SystemExit):
