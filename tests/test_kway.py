@@ -638,7 +638,6 @@ def test_experiment_on_a_separable_table(rng):
         run_kway_experiment(jax.random.key(1), KwayModel(*(x[:2] for x in model)), trials)
 
 
-@pytest.mark.slow
 @pytest.mark.slow  # three experiments compiled (about 40 s): make test-slow (CI)
 def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
     """Draws (a, b) weighted (3/4, 1/4) are the draws (a, a, a, b): the same filter, so the same numbers."""
@@ -691,6 +690,7 @@ def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
         run_kway_experiment(jax.random.key(1), model, trials, log_weight=np.zeros(4))
 
 
+@pytest.mark.slow  # a K-way NUTS fit (about 60 s): make test-slow (CI)
 def test_fit_kway_recovers_the_category_means_and_round_trips(tmp_path):
     """Short NUTS fits of a table with known means: the K-way reading recovers them; saved fits give
     the same stack; the stack survives save/load."""
