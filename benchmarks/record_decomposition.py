@@ -14,9 +14,18 @@ that record (a recorded file: its claims hold on every machine). Made with::
         --rows random,greedy_joint,confident,oracle_random,oracle,clairvoyant --oracle
     python benchmarks/record_decomposition.py RESULTS --oracle-from ORACLE
 
-Run: ``python benchmarks/record_decomposition.py RESULTS [--world-from DIR] [--oracle-from DIR]``
-(``--world-from``: the folder of ``decomposition-model-world.json`` when it is not ``RESULTS``;
-``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept as ``oracle``).
+The model-optimal bracket (about a second a trial and method, so a few hundred trials, one folder per
+target to use both cores) in the world each filter assumes, kept as ``filter_world``::
+
+    scrppl decompose --profile full --out RESULTS_T --trials 250 --targets T \
+        --rows random,greedy_joint,confident,clairvoyant --model-world --world filter --model-optimal
+    python benchmarks/record_decomposition.py --filter-world-from RESULTS_bicycle RESULTS_car ...
+
+Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
+[--filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
+it is not ``RESULTS``; ``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept
+as ``oracle``; ``--filter-world-from``: folders of ``decomposition-filter-world.json``, their targets
+merged). Without ``RESULTS`` the record's other parts are kept as they are.
 """
 
 from __future__ import annotations
@@ -43,9 +52,31 @@ def _read(path: Path) -> dict:
     return data
 
 
+def merge_targets(paths: list[Path]) -> dict:
+    """One decomposition from several runs of the same settings, each on some of the targets."""
+    runs = [_read(p) for p in paths]
+    merged = dict(runs[0], targets={}, seconds_total=0.0)
+    for path, run in zip(paths, runs, strict=True):
+        if (run["seed"], run["settings"]) != (runs[0]["seed"], runs[0]["settings"]):
+            raise SystemExit(f"{path}: seed or settings differ from {paths[0]}'s")
+        for target, entry in run["targets"].items():
+            if target in merged["targets"]:
+                raise SystemExit(f"{path}: target {target!r} is already in another folder's run")
+            merged["targets"][target] = entry
+        merged["seconds_total"] += float(run.get("seconds_total", 0.0))
+    return merged
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("results", type=Path, help="a results folder holding decomposition.json")
+    ap.add_argument(
+        "results", type=Path, nargs="?", default=None,
+        help="a results folder holding decomposition.json (default: keep the record's)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--filter-world-from", type=Path, nargs="+", default=None,
+        help="folders of decomposition-filter-world.json (--world filter --model-optimal runs)",
+    )  # fmt: skip
     ap.add_argument("--world-from", type=Path, default=None,
                     help="folder of decomposition-model-world.json (default: RESULTS)")  # fmt: skip
     ap.add_argument(
@@ -54,32 +85,51 @@ def main(argv=None) -> None:
     )  # fmt: skip
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
-    real = _read(args.results / "decomposition.json")
-    world_path = (args.world_from or args.results) / "decomposition-model-world.json"
-    world = _read(world_path) if world_path.exists() else None
+    old = {}
+    if args.results is None:
+        if args.out.exists():
+            old = json.loads(args.out.read_text())
+        if args.filter_world_from is None or "real" not in old:
+            raise SystemExit(
+                "give a results folder, or --filter-world-from with an existing record to add to"
+            )
+        real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
+    else:
+        real = _read(args.results / "decomposition.json")
+        world_path = (args.world_from or args.results) / "decomposition-model-world.json"
+        world = _read(world_path) if world_path.exists() else None
+        oracle = _read(args.oracle_from / "decomposition.json") if args.oracle_from else None
     if world is not None and world["seed"] != real["seed"]:
         raise SystemExit(
-            f"{world_path}: seed {world['seed']} differs from the real run's {real['seed']}"
+            f"model world: seed {world['seed']} differs from the real run's {real['seed']}"
         )
-    oracle = _read(args.oracle_from / "decomposition.json") if args.oracle_from else None
     if oracle is not None and "oracle" not in oracle["settings"].get("rows", []):
         raise SystemExit(
             f"{args.oracle_from / 'decomposition.json'}: has no oracle rows (run with --oracle)"
         )
+    filter_world = old.get("filter_world")
+    if args.filter_world_from is not None:
+        filter_world = merge_targets(
+            [d / "decomposition-filter-world.json" for d in args.filter_world_from]
+        )
+        if filter_world["settings"].get("world") != "filter":
+            raise SystemExit(f"{args.filter_world_from[0]}: not a --world filter run")
     record = {
         "what": (
             "views to confidence from a random view to the clairvoyant bound in the paper regime "
-            "(full profile, paper images, DPM), on the real held-out responses and in the model's own "
-            "world (scrppl decompose; read by ch. 9)"
+            "(full profile, paper images, DPM), on the real held-out responses, in the model's own "
+            "world and in the world each filter assumes, with the model-optimal bracket (scrppl "
+            "decompose; read by ch. 9)"
         ),
         "command": (
             "scrppl decompose --profile full --trials T --rows random,greedy_joint,confident,"
-            "clairvoyant [--model-world]"
+            "clairvoyant [--model-world [--world filter --model-optimal]]"
         ),
         "machine": machine_description(),
         "real": real,
         "model_world": world,
         "oracle": oracle,
+        "filter_world": filter_world,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

@@ -14,7 +14,9 @@ compiled runners are then shared by every test):
 The slow tests compile the other planners (about 10 s on two cores): the whole ladder on the tiny folder
 (bound below every row, the two-step row is :func:`run_two_step_trials` with the same key), and
 ``scrppl simulate`` then ``scrppl decompose`` on a folder made of the shipped example models (both
-filters), checked against ``trials.nc``.
+filters), checked against ``trials.nc``; and the ladder in the filter world with the model-optimal
+bracket beside it. Fast tests check the filter world's draws (views independent, the marginal predictive)
+and the model-optimal summary against numbers by hand.
 """
 
 import json
@@ -451,6 +453,105 @@ def test_model_world_ladder_runs_and_is_written_beside_the_real_one(folder):
     assert "in the model's own world" in written[1].read_text()
 
 
+def test_filter_world_draws_every_view_independently():
+    """independent=True: per class and view the marginal predictive's mean and variance, and two views
+    of one trial uncorrelated (the shared draw and instance effect of the model world are gone)."""
+    rng = np.random.default_rng(5)
+    n_draws, n = 3, 40_000
+    mu = rng.normal(0.0, 1.0, size=(n_draws, 2, A, 1, 1))
+    sigma = rng.uniform(0.3, 0.8, size=mu.shape)
+    tau = rng.uniform(0.4, 0.8, size=(n_draws, 2))
+    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    label = rng.integers(0, 2, n)
+    available = np.ones((n, A, 1, 1), bool)
+    available[::5, 1] = False
+    trials = Trials(
+        jnp.zeros((n, A, 1, 1), jnp.float32), jnp.asarray(available), jnp.asarray(label),
+        jnp.asarray(rng.integers(0, A, n)), jnp.zeros((n, 3), jnp.int32),
+        jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
+    )  # fmt: skip
+    world = D.model_world_trials(jax.random.key(2), model, trials, independent=True)
+    f = np.asarray(world.responses, np.float64)[..., 0, 0]
+    assert np.all(f[::5, 1] == 0.0)
+    for o in (0, 1):
+        rows = (label == o) & available[:, 1, 0, 0]
+        m, s, t = mu[:, o, :, 0, 0], sigma[:, o, :, 0, 0], tau[:, o]
+        mean = m.mean(0)
+        var = (s**2 + t[:, None] ** 2 + m**2).mean(0) - mean**2
+        se = np.sqrt(var / rows.sum())
+        np.testing.assert_array_less(np.abs(f[rows].mean(0) - mean), 5 * se)
+        np.testing.assert_allclose(f[rows].var(0), var, rtol=0.05)
+        # the same trials in the model world covary by about E[tau^2] > 0.16; here they do not
+        corr = np.corrcoef(f[rows, 0], f[rows, 2])[0, 1]
+        assert abs(corr) < 5 / np.sqrt(rows.sum()), corr
+
+
+def test_model_optimal_summary_against_numbers_by_hand():
+    """The model-optimal entry: means, paired differences and shares of the room from the arrays."""
+    import xarray as xr
+
+    views = np.array([[[3, 4, 2, 5], [2, 4, 2, 4], [1, 2, 1, 3]]])  # (method, row, trial)
+    ds = xr.Dataset(
+        {"views_to_confidence": (("method", "row", "trial"), views)},
+        coords={"method": ["m"], "row": ["random", "greedy_joint", "clairvoyant"]},
+    )
+    bracket = np.array([[1.5, 2.0], [3.0, 3.5], [1.0, 1.5], [3.5, 4.5]])
+    got = D.summarise_model_optimal(ds, {"m": bracket}, seed=0, n_boot=200)["m"]
+    random, greedy, clair = (views[0, j].astype(float) for j in range(3))
+    for k, bound in enumerate(("lower", "upper")):
+        x = bracket[:, k]
+        r = got[bound]
+        assert r["views_to_confidence"] == pytest.approx(x.mean())
+        assert r["difference_vs"]["random"]["mean"] == pytest.approx((x - random).mean())
+        assert r["difference_vs"]["greedy_joint"]["mean"] == pytest.approx((x - greedy).mean())
+        assert "clairvoyant" not in r["difference_vs"]
+        share = (random - x).mean() / (random - clair).mean()
+        assert r["share_of_room"]["mean"] == pytest.approx(share)
+        assert r["share_of_room"]["lo"] <= share <= r["share_of_room"]["hi"]
+    with pytest.raises(ValueError, match="the ladder 4 trials"):
+        D.summarise_model_optimal(ds, {"m": bracket[:3]})
+    with pytest.raises(ValueError, match="'clairvoyant' row"):
+        D.summarise_model_optimal(ds.sel(row=["random", "greedy_joint"]), {"m": bracket})
+
+
+@pytest.mark.slow
+def test_filter_world_ladder_with_the_model_optimal_bracket(folder):
+    """decompose_target(world="filter", model_optimal=...): the bracket's ends in order, between the
+    clairvoyant bound's and a planner's reach (up to its Monte Carlo error), saved under its own name."""
+    table = load_response_table(folder / "responses.nc")
+    settings = {"naive_bayes": {"depth": 1, "n_samples": 8, "n_futures": 8}}
+    ds, entry = D.decompose_target(
+        SEED, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+        kinds=["gaussian"], confident=CONFIDENT, rows=FAST_ROWS, n_boot=200, model_world=True,
+        world="filter", model_optimal=settings, **OPTIONS,
+    )  # fmt: skip
+    mo = entry["methods"]["gaussian+naive_bayes"]["model_optimal"]
+    rows = entry["methods"]["gaussian+naive_bayes"]["rows"]
+    assert mo["lower"]["views_to_confidence"] <= mo["upper"]["views_to_confidence"]
+    assert 1.0 <= mo["lower"]["views_to_confidence"] and mo["upper"]["views_to_confidence"] <= A + 1
+    assert set(mo["lower"]["difference_vs"]) == {"random", "greedy_joint"} and rows
+    assert "model_optimal" in entry["seconds"]
+    with pytest.raises(ValueError, match="unknown world"):
+        D.decompose_target(
+            SEED, table, folder / "models", "dpm", "car", trials=TRIALS, max_draws=None,
+            kinds=["gaussian"], rows=FAST_ROWS, model_world=True, world="moon",
+        )  # fmt: skip
+    result = {"settings": {"model_world": True, "world": "filter", "trials": TRIALS,
+                           "n_samples": 8, "lookahead_outer": 4, "lookahead_samples": 4,
+                           "confident": CONFIDENT._asdict(), "max_draws": None,
+                           "confidence_threshold": M.CONFIDENCE, "n_boot": 200},
+              "detector": "dpm", "seed": SEED, "targets": {"car": entry}}  # fmt: skip
+    out = folder / "filter-world"
+    out.mkdir()
+    written = D.save_decomposition(result, out)
+    assert [p.name for p in written] == [
+        "decomposition-filter-world.json",
+        "decomposition-filter-world.md",
+    ]
+    text = written[1].read_text()
+    assert "the world each filter assumes" in text and "Model-optimal policy" in text
+
+
 def test_model_world_refuses_a_model_of_other_views():
     model = tiny_model()
     trials = Trials(
@@ -533,7 +634,28 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     record = json.loads(out.read_text())
     assert record["real"] == json.loads((tmp_path / "decomposition.json").read_text())
     assert record["model_world"] is None and record["oracle"] is None
+    assert record["filter_world"] is None
     assert record["machine"]["cores"] >= 1
+    # filter-world runs of one target each are merged into the record, its other parts kept
+    world = {"seed": SEED, "settings": {"trials": TRIALS, "world": "filter"}, "seconds_total": 2}
+    for target in ("car", "bike"):
+        (tmp_path / target).mkdir()
+        (tmp_path / target / "decomposition-filter-world.json").write_text(
+            json.dumps(dict(world, targets={target: entry}))
+        )
+    mod.main(
+        ["--filter-world-from", str(tmp_path / "car"), str(tmp_path / "bike"), "--out", str(out)]
+    )
+    again = json.loads(out.read_text())
+    assert again["real"] == record["real"] and list(again["filter_world"]["targets"]) == [
+        "car",
+        "bike",
+    ]
+    assert again["filter_world"]["seconds_total"] == 4
+    with pytest.raises(SystemExit, match="already in another folder"):
+        mod.main(
+            ["--filter-world-from", str(tmp_path / "car"), str(tmp_path / "car"), "--out", str(out)]
+        )
     with pytest.raises(SystemExit, match="has no oracle rows"):
         mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):

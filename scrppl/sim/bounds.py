@@ -25,6 +25,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from scrppl import belief as B
 from scrppl.confident import RESPONSES, optimal_remaining_views, step_cost
@@ -181,6 +182,9 @@ def model_optimal_views(
     order: int = 2,
     threshold: float = CONFIDENCE,
     n_steps: int | None = None,
+    leaf: str = "horizon",
+    n_futures: int = 64,
+    progress: bool = False,
 ) -> np.ndarray:
     """Bracket of the model-optimal expected views to confidence after each trial's start response.
 
@@ -197,6 +201,11 @@ def model_optimal_views(
     a Monte Carlo error and, below the first level, the optimistic bias of a minimum over noisy
     estimates; hence sampling is the default.
 
+    ``leaf="futures"`` narrows the bracket where ``depth`` views do not settle most trials: each leaf of
+    the tree draws ``n_futures`` futures of the filter's own model and counts the rest in hindsight
+    (lower: the fewest views any policy could need on that future) and in a fixed order (upper: the value
+    of a policy). See :func:`scrppl.confident.expected_remaining_views`.
+
     Cost per trial: ``((A - 1) J)^depth`` responses, ``J = n_samples`` or ``N O A order``.
 
     Parameters
@@ -209,10 +218,12 @@ def model_optimal_views(
         ``"naive_bayes"`` or ``"instance"``.
     key
         PRNG key of the sampled responses (the same draws for every trial; unused by ``"quadrature"``).
-    depth, response, n_samples, order, threshold
+    depth, response, n_samples, order, threshold, leaf, n_futures
         As in :func:`scrppl.confident.expected_remaining_views`.
     n_steps
         Views per trial (default ``A``).
+    progress
+        A progress bar over the trials.
 
     Returns
     -------
@@ -223,9 +234,9 @@ def model_optimal_views(
     n_steps = check_trial_inputs(model, trials, PlannerConfig(mode="azimuth"), filter, n_steps)
     n_a = model.mu.shape[2]
     options = dict(depth=depth, response=response, order=order, n_samples=n_samples, key=key,
-                   threshold=threshold)  # fmt: skip
+                   threshold=threshold, leaf=leaf, n_futures=n_futures)  # fmt: skip
     out = []
-    for t in range(trials.n_trials):
+    for t in tqdm(range(trials.n_trials), desc="model-optimal", disable=not progress):
         resp, avail, _, pose, start = (np.asarray(x[t]) for x in tuple(trials)[:5])
         f, ok = (np.asarray(x) for x in _trial_views(resp, avail, pose, start))
         phi0, e0, s0 = (int(v) for v in start)

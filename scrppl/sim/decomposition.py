@@ -81,11 +81,16 @@ __all__ = [
     "PLANNER_ROWS",
     "DEFAULT_LOOKAHEAD_SAMPLES",
     "MODEL_WORLD_STREAM",
+    "MODEL_OPTIMAL",
+    "MODEL_OPTIMAL_STREAM",
+    "model_optimal_brackets",
+    "summarise_model_optimal",
     "decomposition_planners",
     "run_two_step_trials",
     "run_decomposition",
     "fit_oracle",
     "model_world_trials",
+    "WORLDS",
     "summarise_decomposition",
     "view_informativeness",
     "study_keys",
@@ -112,6 +117,15 @@ DEFAULT_LOOKAHEAD_SAMPLES = 32
 
 #: The stream of the model world's responses: ``fold_in(trial key, MODEL_WORLD_STREAM)``.
 MODEL_WORLD_STREAM = 0x30D1D
+#: The stream of the model-optimal bracket's sampled responses: ``fold_in(planner key, ...)``.
+MODEL_OPTIMAL_STREAM = 0x0B7
+#: Settings of the model-optimal bracket per filter (:func:`model_optimal_brackets`): expectimax depth,
+#: responses per level and futures per leaf. The naive-Bayes filter's states are few, so it looks two
+#: views deep; the instance-aware filter's (per draw and pose) cost 32 times more, so it looks one.
+MODEL_OPTIMAL = {
+    "naive_bayes": {"depth": 2, "n_samples": 16, "n_futures": 8},
+    "instance": {"depth": 1, "n_samples": 64, "n_futures": 16},
+}
 
 #: The stream of the oracle fits' keys: ``fold_in(fold_in(key(seed), ORACLE_STREAM), target number)``.
 ORACLE_STREAM = 0x0AC1E
@@ -541,6 +555,83 @@ def summarise_decomposition(ds: xr.Dataset, seed: int = 0, n_boot: int = 2000) -
     return out
 
 
+def model_optimal_brackets(
+    key: jax.Array,
+    methods: Mapping[str, Method],
+    settings: Mapping[str, Mapping[str, int]] = MODEL_OPTIMAL,
+    *,
+    progress: bool = False,
+) -> dict[str, np.ndarray]:
+    """Per method, the bracket of the model-optimal expected views to confidence of every trial.
+
+    :func:`scrppl.sim.bounds.model_optimal_views` with the futures leaf and ``settings[filter]``, key
+    ``fold_in(key, method number)``: ``lower`` (hindsight after the tree) and ``upper`` (the tree, then a
+    fixed order, the value of a policy) of the best adaptive policy under the filter's own model, given
+    each trial's start response. In the model world (:func:`model_world_trials`) their means bracket what
+    the best policy would score on the ladder's trials.
+
+    Returns
+    -------
+    ``{method: (T, 2) array}``.
+    """
+    from scrppl.sim.bounds import model_optimal_views
+
+    out = {}
+    for i, (name, m) in enumerate(methods.items()):
+        if m.filter not in settings:
+            raise ValueError(
+                f"no model-optimal settings for filter {m.filter!r} (method {name}); "
+                f"given: {sorted(settings)}"
+            )
+        out[name] = model_optimal_views(
+            m.model, m.trials, filter=m.filter, key=jax.random.fold_in(key, i), leaf="futures",
+            progress=progress, **settings[m.filter],
+        )  # fmt: skip
+    return out
+
+
+def summarise_model_optimal(
+    ds: xr.Dataset, brackets: Mapping[str, np.ndarray], seed: int = 0, n_boot: int = 2000
+) -> dict[str, dict[str, Any]]:
+    """The model-optimal bracket beside the ladder's rows, per method.
+
+    For ``lower`` and ``upper``: the mean ``views_to_confidence``, the paired differences from each
+    planner row of ``ds`` (``difference_vs``; negative = the optimum needs fewer views) and the
+    ``share_of_room`` (random minus clairvoyant) it captures, with the bootstrap intervals of
+    :func:`summarise_decomposition`. Needs the ``random`` and ``clairvoyant`` rows.
+    """
+    rows = ds["row"].values.tolist()
+    for need in ("random", "clairvoyant"):
+        if need not in rows:
+            raise ValueError(f"the model-optimal summary needs the {need!r} row; rows: {rows}")
+    out = {}
+    for i, method in enumerate(ds["method"].values.tolist()):
+        v = ds["views_to_confidence"].values[i].astype(np.float64)
+        b = np.asarray(brackets[method], np.float64)
+        if b.shape != (v.shape[1], 2):
+            raise ValueError(
+                f"method {method}: the bracket has shape {b.shape}, the ladder {v.shape[1]} trials"
+            )
+        random, clair = v[rows.index("random")], v[rows.index("clairvoyant")]
+        entry = {}
+        for k, bound in enumerate(("lower", "upper")):
+            x = b[:, k]
+            share = _ratio_bootstrap(seed, random - x, random - clair, n_boot)
+            entry[bound] = {
+                "views_to_confidence": float(x.mean()),
+                "difference_vs": {
+                    row: _interval(*M.paired_bootstrap_difference(seed, x, v[j], n_boot))
+                    for j, row in enumerate(rows)
+                    if row != "clairvoyant"
+                },
+                "share_of_room": None
+                if share[0] is None
+                else dict(zip(("mean", "lo", "hi"), share, strict=True)),
+            }
+        out[method] = entry
+    return out
+
+
 def view_informativeness(methods: Mapping[str, Method], *, order: int = 32) -> dict[str, Any]:
     """:func:`scrppl.confident.view_information` of each model kind, on every elevation and scale.
 
@@ -604,6 +695,8 @@ def decompose_target(
     rows: Sequence[str] = ROWS,
     oracle_models_dir: str | Path | None = None,
     model_world: bool = False,
+    world: str = "model",
+    model_optimal: Mapping[str, Mapping[str, int]] | None = None,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -637,6 +730,15 @@ def decompose_target(
         Replace each method's responses by draws from its own model (:func:`model_world_trials`, key
         ``fold_in(fold_in(trial key, MODEL_WORLD_STREAM), method number)``): the ladder in the world
         the planners believe in. Not with oracle rows.
+    world
+        Which model world (:data:`WORLDS`): ``"model"``, the model's generative process for every
+        method, or ``"filter"``, the world each method's filter assumes (naive-Bayes methods get views
+        drawn independently, ``model_world_trials(..., independent=True)``).
+    model_optimal
+        Settings per filter of the model-optimal bracket (:data:`MODEL_OPTIMAL`,
+        :func:`model_optimal_brackets`, key ``fold_in(planner key, MODEL_OPTIMAL_STREAM)``), reported
+        per method as ``model_optimal`` (:func:`summarise_model_optimal`); ``None``: not computed. Needs
+        the ``random`` and ``clairvoyant`` rows.
     n_boot
         Bootstrap resamples of the intervals.
     progress, log
@@ -688,16 +790,21 @@ def decompose_target(
                 f"oracle models under {oracle_models_dir} give the kinds {list(oracle_used)}, the "
                 f"run's {list(used)} ({'; '.join(skipped)}); fit them with fit_oracle"
             )
+    if world not in WORLDS:
+        raise ValueError(f"unknown world {world!r}; expected one of {WORLDS}")
     if model_world:
         if oracle is not None:
             raise ValueError("the model world has no oracle: its models are right by construction")
         k_world = jax.random.fold_in(k_trials, MODEL_WORLD_STREAM)
         methods = {
-            name: m._replace(trials=model_world_trials(jax.random.fold_in(k_world, i), m.model, m.trials))
+            name: m._replace(trials=model_world_trials(
+                jax.random.fold_in(k_world, i), m.model, m.trials,
+                independent=world == "filter" and m.filter == "naive_bayes",
+            ))
             for i, (name, m) in enumerate(methods.items())
         }  # fmt: skip
-    world = " (responses drawn from each method's own model)" if model_world else ""
-    log(f"[decompose] {target}: {trials} trials{world}, methods {', '.join(methods)}")
+    said = f" (responses drawn from each method's own {world})" if model_world else ""
+    log(f"[decompose] {target}: {trials} trials{said}, methods {', '.join(methods)}")
     ds = run_decomposition(
         k_run, methods, n_samples=n_samples, lookahead_samples=lookahead_samples,
         lookahead_outer=lookahead_outer, confident=confident, rows=rows, oracle_methods=oracle,
@@ -713,10 +820,27 @@ def decompose_target(
             for r, s in zip(ds["row"].values.tolist(), ds["seconds"].values, strict=True)
         },
     }
+    if model_optimal is not None:
+        log(f"[decompose] {target}: the model-optimal bracket")
+        t0 = time.perf_counter()
+        brackets = model_optimal_brackets(
+            jax.random.fold_in(k_run, MODEL_OPTIMAL_STREAM), methods, model_optimal,
+            progress=progress,
+        )  # fmt: skip
+        for name, rec in summarise_model_optimal(ds, brackets, seed, n_boot).items():
+            entry["methods"][name]["model_optimal"] = rec
+        entry["seconds"]["model_optimal"] = round(time.perf_counter() - t0, 2)
     return ds, entry
 
 
-def model_world_trials(key: jax.Array, model: ResponseModel, trials: Trials) -> Trials:
+#: The worlds of ``model_world``: the model's generative process for every method (``"model"``), or
+#: the world each method's filter assumes (``"filter"``: views independent for naive Bayes).
+WORLDS = ("model", "filter")
+
+
+def model_world_trials(
+    key: jax.Array, model: ResponseModel, trials: Trials, *, independent: bool = False
+) -> Trials:
     """The same trials with responses drawn from the model itself: the world the planner believes in.
 
     Each trial keeps its class, pose, start view and missing views; its responses become one draw of
@@ -727,6 +851,12 @@ def model_world_trials(key: jax.Array, model: ResponseModel, trials: Trials) -> 
     instance-aware filter is the exact posterior; what planning saves there is what it could save if the
     model were right, so the clairvoyant room that remains is what hindsight buys, not a better policy.
 
+    With ``independent=True`` every view gets its own draw ``n`` and instance effect ``u``: the views of
+    a trial are independent given its class and pose, each from the marginal predictive
+    ``mean_n Normal(mu, sigma^2 + tau^2)``. That is the world the naive-Bayes filter assumes, in which
+    *it* is the exact posterior and the model-optimal bracket (:func:`model_optimal_brackets`) is its
+    expected score.
+
     Parameters
     ----------
     key
@@ -735,6 +865,8 @@ def model_world_trials(key: jax.Array, model: ResponseModel, trials: Trials) -> 
         The response model (its classes are the trials' labels).
     trials
         The trials, responses through this model's transform (:class:`~scrppl.sim.experiment.Method`).
+    independent
+        A draw and an instance effect per view instead of per trial.
     """
     check_response_model(model)
     n_draws, n_o = model.mu.shape[:2]
@@ -745,6 +877,15 @@ def model_world_trials(key: jax.Array, model: ResponseModel, trials: Trials) -> 
         )
     label = jnp.asarray(trials.label, jnp.int32)
     k_n, k_u, k_e = jax.random.split(key, 3)
+    if independent:
+        shape = trials.responses.shape
+        n = jax.random.randint(k_n, shape, 0, n_draws)
+        lab = jnp.broadcast_to(label[:, None, None, None], shape)
+        a, e, s = (jnp.broadcast_to(x, shape) for x in jnp.ix_(*(jnp.arange(d) for d in shape[1:])))
+        mu, sigma = model.mu[n, lab, a, e, s], model.sigma[n, lab, a, e, s]
+        u = model.tau[n, lab] * jax.random.normal(k_u, shape, mu.dtype)
+        f = mu + u + sigma * jax.random.normal(k_e, shape, mu.dtype)
+        return trials._replace(responses=jnp.where(trials.available, f, 0.0).astype(mu.dtype))
     n = jax.random.randint(k_n, label.shape, 0, n_draws)
     mu, sigma = model.mu[n, label], model.sigma[n, label]  # (T, A, E, S)
     u = model.tau[n, label] * jax.random.normal(k_u, label.shape, mu.dtype)
@@ -785,6 +926,8 @@ def decompose_results(
     rows: Sequence[str] = ROWS,
     oracle_sampler=None,
     model_world: bool = False,
+    world: str = "model",
+    model_optimal: Mapping[str, Mapping[str, int]] | None = None,
     n_boot: int = 2000,
     progress: bool = False,
     log: Callable[[str], None] = lambda msg: None,
@@ -821,6 +964,11 @@ def decompose_results(
     model_world
         Run the ladder on responses drawn from each method's own model (:func:`model_world_trials`);
         written by :func:`save_decomposition` as ``decomposition-model-world.*``.
+    world
+        Which model world (:func:`decompose_target`); ``"filter"`` is written as
+        ``decomposition-filter-world.*``.
+    model_optimal
+        Settings per filter of the model-optimal bracket (:func:`decompose_target`); ``None``: none.
 
     Returns
     -------
@@ -888,6 +1036,10 @@ def decompose_results(
             "confidence_threshold": M.CONFIDENCE,
             "rows": list(rows),
             "model_world": bool(model_world),
+            "world": world if model_world else None,
+            "model_optimal": None
+            if model_optimal is None
+            else {k: dict(v) for k, v in model_optimal.items()},
         },
         "targets": {},
     }
@@ -912,7 +1064,7 @@ def decompose_results(
             lookahead_samples=lookahead_samples, lookahead_outer=lookahead_outer,
             confident=confident, rows=rows, n_boot=n_boot, progress=progress, log=log,
             oracle_models_dir=oracle_dir if oracle_report is not None else None,
-            model_world=model_world,
+            model_world=model_world, world=world, model_optimal=model_optimal,
         )  # fmt: skip
         if oracle_report is not None:
             if not oracle_report.get("ok", False):
@@ -960,7 +1112,16 @@ def format_decomposition(result: Mapping[str, Any]) -> str:
         f"room (random minus clairvoyant) the row captures.",
         "",
     ]
-    if s.get("model_world"):
+    if s.get("model_world") and s.get("world") == "filter":
+        lines[0] += ", in the world each filter assumes"
+        lines += [
+            "**Filter world:** every method's held-out responses are replaced by draws from the world "
+            "its filter assumes (scrppl.sim.decomposition.model_world_trials; views independent for "
+            "naive Bayes): each filter is the exact posterior there, and the model-optimal bracket is "
+            "the best any policy could score.",
+            "",
+        ]
+    elif s.get("model_world"):
         lines[0] += ", in the model's own world"
         lines += [
             "**Model world:** every method's held-out responses are replaced by draws from its own "
@@ -990,6 +1151,22 @@ def format_decomposition(result: Mapping[str, Any]) -> str:
                     f"{_ci(r['difference_vs_previous'])} | {_share(r['share_of_room'])} |"
                 )
             lines.append("")
+            mo = m.get("model_optimal")
+            if mo:
+                lines += [
+                    "Model-optimal policy (expected views, bracketed; minus random, minus the greedy "
+                    "planner, share of room):",
+                    "",
+                ]
+                for bound in ("lower", "upper"):
+                    r = mo[bound]
+                    greedy = r["difference_vs"].get("greedy_joint")
+                    lines.append(
+                        f"- {bound}: {r['views_to_confidence']:.3f} views, "
+                        f"{_ci(r['difference_vs'].get('random'))}, {_ci(greedy)}, "
+                        f"{_share(r['share_of_room'])}"
+                    )
+                lines.append("")
         info = entry.get("view_information", {})
         if info:
             n_a = len(next(iter(info.values()))["nats"][0][0])
@@ -1015,7 +1192,8 @@ def save_decomposition(result: Mapping[str, Any], out: str | Path) -> list[Path]
     """Write ``decomposition.json`` and ``decomposition.md`` under ``out`` (each atomically).
 
     A model-world run (``settings.model_world``) is written as ``decomposition-model-world.*`` beside
-    the real one, not over it.
+    the real one, not over it, and a filter-world run (``settings.world == "filter"``) as
+    ``decomposition-filter-world.*``.
     """
     import json
 
@@ -1023,8 +1201,9 @@ def save_decomposition(result: Mapping[str, Any], out: str | Path) -> list[Path]
 
     out = Path(out)
     stem = "decomposition"
-    if result.get("settings", {}).get("model_world"):
-        stem += "-model-world"
+    settings = result.get("settings", {})
+    if settings.get("model_world"):
+        stem += "-filter-world" if settings.get("world") == "filter" else "-model-world"
     written = []
     for name, text in (
         (f"{stem}.json", json.dumps(result, indent=2)),
