@@ -114,6 +114,7 @@ def main(argv=None) -> None:
         )
         if filter_world["settings"].get("world") != "filter":
             raise SystemExit(f"{args.filter_world_from[0]}: not a --world filter run")
+        filter_world["machine"] = machine_description()
     record = {
         "what": (
             "views to confidence from a random view to the clairvoyant bound in the paper regime "
@@ -125,7 +126,7 @@ def main(argv=None) -> None:
             "scrppl decompose --profile full --trials T --rows random,greedy_joint,confident,"
             "clairvoyant [--model-world [--world filter --model-optimal]]"
         ),
-        "machine": machine_description(),
+        "machine": old.get("machine") or machine_description(),  # of the real run
         "real": real,
         "model_world": world,
         "oracle": oracle,
