@@ -508,6 +508,37 @@ def test_model_optimal_summary_against_numbers_by_hand():
         share = (random - x).mean() / (random - clair).mean()
         assert r["share_of_room"]["mean"] == pytest.approx(share)
         assert r["share_of_room"]["lo"] <= share <= r["share_of_room"]["hi"]
+    # the frame reads them back beside the ladder's means
+    rows = {r: {"views_to_confidence": float(views[0, j].mean())}
+            for j, r in enumerate(("random", "greedy_joint", "clairvoyant"))}  # fmt: skip
+    result = {"targets": {"car": {"methods": {"m": {"rows": rows, "model_optimal": got}}}}}
+    frame = D.model_optimal_frame(result)
+    assert list(frame.columns) == list(D.MODEL_OPTIMAL_COLUMNS)
+    row = frame.loc[("car", "m")]
+    assert row["random"] == pytest.approx(random.mean()) and np.isnan(row["confident"])
+    assert row["optimal_lower"] == pytest.approx(bracket[:, 0].mean())
+    assert row["share_lower"] == got["upper"]["share_of_room"]["mean"]
+    assert row["share_upper"] == got["lower"]["share_of_room"]["mean"]
+    assert row["upper_minus_greedy"] == pytest.approx((bracket[:, 1] - greedy).mean())
+    # the figure draws exactly these: the room from the bound to random, the bracket's bar
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scrppl.plotting import plot_model_optimal
+
+    fig = plot_model_optimal(result)
+    segments = [np.asarray(c.get_segments()[0]) for c in fig.axes[0].collections]
+    want = [
+        [[clair.mean(), 0], [random.mean(), 0]],
+        [[row["optimal_lower"], 0], [row["optimal_upper"], 0]],
+    ]
+    np.testing.assert_allclose(segments, want)
+    plt.close(fig)
+    del result["targets"]["car"]["methods"]["m"]["model_optimal"]
+    with pytest.raises(ValueError, match="no model-optimal bracket"):
+        D.model_optimal_frame(result)
     with pytest.raises(ValueError, match="the ladder 4 trials"):
         D.summarise_model_optimal(ds, {"m": bracket[:3]})
     with pytest.raises(ValueError, match="'clairvoyant' row"):

@@ -31,7 +31,11 @@ from scrppl.plotting.dataset import (
     show_images,
     view_sphere,
 )
-from scrppl.plotting.decomposition import plot_decomposition, plot_view_information
+from scrppl.plotting.decomposition import (
+    plot_decomposition,
+    plot_model_optimal,
+    plot_view_information,
+)
 from scrppl.plotting.detectors import plot_mean_response_by_azimuth, plot_response_over_azimuth
 from scrppl.plotting.kway import (
     plot_kway_accuracy,
@@ -58,6 +62,7 @@ __all__ = [
     "show_images",
     "save_figure",
     "plot_decomposition",
+    "plot_model_optimal",
     "plot_view_information",
     "plot_response_over_azimuth",
     "plot_mean_response_by_azimuth",

@@ -3,7 +3,9 @@
 * :func:`plot_decomposition` -- each planner's views saved against random, with its paired interval,
   beside the clairvoyant room (what hindsight would save) and a third of it;
 * :func:`plot_view_information` -- how much a first look at each relative azimuth tells about the
-  class, per target: planning can only pay where views differ.
+  class, per target: planning can only pay where views differ;
+* :func:`plot_model_optimal` -- the model-optimal bracket on the line from the clairvoyant bound to a
+  random view, beside the planners: how much of the room any policy could take.
 """
 
 from __future__ import annotations
@@ -15,9 +17,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from scrppl.sim.decomposition import decomposition_frame, view_information_frame
+from scrppl.sim.decomposition import (
+    decomposition_frame,
+    model_optimal_frame,
+    view_information_frame,
+)
 
-__all__ = ["plot_decomposition", "plot_view_information"]
+__all__ = ["plot_decomposition", "plot_view_information", "plot_model_optimal"]
 
 #: Legend names and colours of the ladder's rows.
 ROW_STYLE = {
@@ -188,4 +194,70 @@ def plot_view_information(
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
+    return fig
+
+
+def plot_model_optimal(
+    result: Mapping[str, Any],
+    *,
+    ax=None,
+    title: str | None = None,
+) -> Figure:
+    """The model-optimal bracket between the clairvoyant bound and a random view, per target and method.
+
+    Parameters
+    ----------
+    result
+        A decomposition run with ``--model-optimal`` (:func:`scrppl.sim.decomposition.model_optimal_frame`).
+    ax
+        Axes to draw on (default: a new figure).
+    title
+        Axes title (default: one naming the trials).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One line per (target, method), views to confidence along x: a grey segment from the clairvoyant
+        bound (black tick) to a random view (grey tick), the room; a dashed tick a third of the way from
+        random; the greedy planner (eq. 5) and the confident planner as markers; and a thick green bar
+        from the bracket's lower end (no policy does better) to its upper end (a policy that gets there).
+    """
+    frame = model_optimal_frame(result)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(7.2, 0.42 * len(frame) + 2.0))
+    else:
+        fig = ax.figure
+    labels = []
+    for i, ((target, method), r) in enumerate(frame.iterrows()):
+        y = len(frame) - 1 - i
+        labels.append((y, f"{target}, {method}"))
+        ax.hlines(y, r["clairvoyant"], r["random"], color="0.75", lw=1.2)
+        ax.plot([r["clairvoyant"]], [y], "|", color="black", ms=12, mew=2,
+                label="clairvoyant bound" if i == 0 else None)  # fmt: skip
+        ax.plot([r["random"]], [y], "|", color="0.45", ms=12, mew=2,
+                label="random view" if i == 0 else None)  # fmt: skip
+        third = r["random"] - (r["random"] - r["clairvoyant"]) / 3
+        ax.plot([third], [y], "|", color="black", ms=9, mew=1.2, zorder=4,
+                label="a third of the room" if i == 0 else None)  # fmt: skip
+        ax.hlines(y, r["optimal_lower"], r["optimal_upper"], color="tab:green", lw=6, alpha=0.7,
+                  label="model-optimal policy (bracket)" if i == 0 else None)  # fmt: skip
+        for row in ("greedy_joint", "confident"):
+            if np.isfinite(r[row]):
+                name, colour, marker = ROW_STYLE[row]
+                ax.plot([r[row]], [y], marker, color=colour, ms=5, mfc="none" if row == "confident"
+                        else colour, label=name if i == 0 else None)  # fmt: skip
+    ys, names = zip(*labels, strict=True)
+    ax.set_yticks(ys, names, fontsize=8)
+    ax.set_xlabel("views to confidence (mean over paired trials)")
+    ax.grid(axis="x", alpha=0.3)
+    trials = result.get("settings", {}).get("trials")
+    ax.set_title(
+        title
+        or "How much of the room a policy could take"
+        + (f"\n({trials:,} paired trials per target)" if trials else ""),
+        fontsize=10,
+    )
+    handles, names = ax.get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=8, loc="lower center", ncol=3, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     return fig

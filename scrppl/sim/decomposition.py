@@ -85,6 +85,8 @@ __all__ = [
     "MODEL_OPTIMAL_STREAM",
     "model_optimal_brackets",
     "summarise_model_optimal",
+    "model_optimal_frame",
+    "MODEL_OPTIMAL_COLUMNS",
     "decomposition_planners",
     "run_two_step_trials",
     "run_decomposition",
@@ -1310,3 +1312,62 @@ def view_information_frame(result: Mapping[str, Any], kind: str | None = None):
     frame.columns.name = "relative azimuth"
     frame.attrs["prior_entropy"] = prior
     return frame
+
+
+#: The columns of :func:`model_optimal_frame`.
+MODEL_OPTIMAL_COLUMNS = (
+    "random", "greedy_joint", "confident", "clairvoyant", "optimal_lower", "optimal_upper",
+    "share_lower", "share_upper", "upper_minus_greedy", "upper_minus_greedy_lo",
+    "upper_minus_greedy_hi",
+)  # fmt: skip
+
+
+def model_optimal_frame(result: Mapping[str, Any]):
+    """The model-optimal bracket of a decomposition beside its ladder, one row per target and method.
+
+    Parameters
+    ----------
+    result
+        A decomposition run with ``model_optimal`` settings (:func:`decompose_results`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index ``(target, method)``; columns :data:`MODEL_OPTIMAL_COLUMNS`: the ladder's mean views to
+        confidence (``random``, ``greedy_joint``, ``confident``, ``clairvoyant``; NaN for a row not run),
+        the bracket's ends (``optimal_lower``, ``optimal_upper``), the shares of the room they capture
+        (``share_lower``: the upper end's share, what a policy is known to reach; ``share_upper``: the
+        lower end's, more than any policy can reach, up to Monte Carlo error) and the upper end minus
+        the greedy planner, a paired mean with its 95 % interval (negative: the optimum needs fewer).
+    """
+    import pandas as pd
+
+    if "targets" not in result:
+        raise ValueError(f"expected a decomposition (a 'targets' entry), got keys {sorted(result)}")
+    nan = float("nan")
+    records, index = [], []
+    for target, entry in result["targets"].items():
+        for method, m in entry["methods"].items():
+            mo = m.get("model_optimal")
+            if mo is None:
+                raise ValueError(
+                    f"{target} / {method}: no model-optimal bracket (run scrppl decompose with "
+                    f"--model-optimal)"
+                )
+            rows = m["rows"]
+            views = [rows[r]["views_to_confidence"] if r in rows else nan
+                     for r in ("random", "greedy_joint", "confident", "clairvoyant")]  # fmt: skip
+            greedy = mo["upper"]["difference_vs"].get("greedy_joint") or {}
+            records.append(
+                (
+                    *views, mo["lower"]["views_to_confidence"], mo["upper"]["views_to_confidence"],
+                    (mo["upper"]["share_of_room"] or {}).get("mean", nan),
+                    (mo["lower"]["share_of_room"] or {}).get("mean", nan),
+                    greedy.get("mean", nan), greedy.get("lo", nan), greedy.get("hi", nan),
+                )
+            )  # fmt: skip
+            index.append((target, method))
+    return pd.DataFrame.from_records(
+        records, columns=list(MODEL_OPTIMAL_COLUMNS),
+        index=pd.MultiIndex.from_tuples(index, names=["target", "method"]),
+    )  # fmt: skip
