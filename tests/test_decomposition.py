@@ -386,23 +386,29 @@ def test_oracle_models_are_fitted_on_the_test_instances_and_run_as_a_row(folder,
 # the model world
 
 
-def test_model_world_trials_are_the_models_generative_process():
-    """Per class and relative view the drawn responses have the model's mean and variance
-    (mixed over draws), views of one trial covary by tau^2, and the trials keep everything else."""
-    rng = np.random.default_rng(4)
-    n_draws, n = 3, 40_000
+def random_world(seed, tau_range, every, view, n=40_000, n_draws=3):
+    """A random model of 3 draws and 2 classes, and n trials of it; view `view` missing in every
+    `every`-th trial. Returns the arrays (mu, sigma, tau, label, available) and the model and trials."""
+    rng = np.random.default_rng(seed)
     mu = rng.normal(0.0, 1.0, size=(n_draws, 2, A, 1, 1))
     sigma = rng.uniform(0.3, 0.8, size=mu.shape)
-    tau = rng.uniform(0.2, 0.6, size=(n_draws, 2))
+    tau = rng.uniform(*tau_range, size=(n_draws, 2))
     model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
     label = rng.integers(0, 2, n)
     available = np.ones((n, A, 1, 1), bool)
-    available[::7, 3] = False  # a missing view stays missing
+    available[::every, view] = False  # a missing view stays missing
     trials = Trials(
         jnp.zeros((n, A, 1, 1), jnp.float32), jnp.asarray(available), jnp.asarray(label),
         jnp.asarray(rng.integers(0, A, n)), jnp.zeros((n, 3), jnp.int32),
         jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
     )  # fmt: skip
+    return (mu, sigma, tau, label, available), model, trials
+
+
+def test_model_world_trials_are_the_models_generative_process():
+    """Per class and relative view the drawn responses have the model's mean and variance
+    (mixed over draws), views of one trial covary by tau^2, and the trials keep everything else."""
+    (mu, sigma, tau, label, available), model, trials = random_world(4, (0.2, 0.6), 7, 3)
     world = D.model_world_trials(jax.random.key(1), model, trials)
     for field in ("available", "label", "pose", "start", "category", "instance"):
         np.testing.assert_array_equal(getattr(world, field), getattr(trials, field))
@@ -456,20 +462,7 @@ def test_model_world_ladder_runs_and_is_written_beside_the_real_one(folder):
 def test_filter_world_draws_every_view_independently():
     """independent=True: per class and view the marginal predictive's mean and variance, and two views
     of one trial uncorrelated (the shared draw and instance effect of the model world are gone)."""
-    rng = np.random.default_rng(5)
-    n_draws, n = 3, 40_000
-    mu = rng.normal(0.0, 1.0, size=(n_draws, 2, A, 1, 1))
-    sigma = rng.uniform(0.3, 0.8, size=mu.shape)
-    tau = rng.uniform(0.4, 0.8, size=(n_draws, 2))
-    model = ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
-    label = rng.integers(0, 2, n)
-    available = np.ones((n, A, 1, 1), bool)
-    available[::5, 1] = False
-    trials = Trials(
-        jnp.zeros((n, A, 1, 1), jnp.float32), jnp.asarray(available), jnp.asarray(label),
-        jnp.asarray(rng.integers(0, A, n)), jnp.zeros((n, 3), jnp.int32),
-        jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
-    )  # fmt: skip
+    (mu, sigma, tau, label, available), model, trials = random_world(5, (0.4, 0.8), 5, 1)
     world = D.model_world_trials(jax.random.key(2), model, trials, independent=True)
     f = np.asarray(world.responses, np.float64)[..., 0, 0]
     assert np.all(f[::5, 1] == 0.0)
