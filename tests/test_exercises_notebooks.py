@@ -9,7 +9,9 @@
 * The notebooks follow the format (``notebooks/README.md``) and are wired into the book.
 
 Each notebook execution starts a Jupyter kernel (a few seconds): ``benchmarks/bench_exercises.py``
-records the time of the whole exercise suite.
+records the time of the whole exercise suite. The solution notebooks' execution (about two and a half
+CPU-minutes) runs with the slow tests (``make test-slow``, its own CI step); ``make book`` executes the
+same pages as the book's exercise pages, where a failed check or a line on stderr fails the build.
 """
 
 import ast
@@ -81,6 +83,7 @@ def test_there_are_exercise_notebooks_for_chapters_2_to_4():
 
 
 # -- the solution notebooks -------------------------------------------------------------------------
+@pytest.mark.slow  # make book executes the same pages (an error or a stderr line fails it)
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=IDS)
 def test_solution_notebook_executes_and_its_checks_pass(path):
     nb = execute(jupytext.read(path))
