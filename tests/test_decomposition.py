@@ -270,6 +270,9 @@ def test_command_names_what_the_folder_lacks(tmp_path, capsys):
     assert "--trials must be at least 1" in error(both, "--trials", "0")
     assert "starting with 'random'" in error(both, "--kinds", "gaussian", "--rows", "greedy_joint")
     assert "--model-world and --oracle" in error(both, "--model-world", "--oracle")
+    assert "give it with --model-world" in error(both, "--world", "filter")
+    err = error(both, "--model-optimal", "--rows", "random,greedy_joint")
+    assert "--model-optimal needs the rows 'random' and 'clairvoyant'" in err
     (both / "simulate-summary.json").write_text("{not json")
     err = error(both)
     assert "simulate summary" in err and "unreadable" in err
