@@ -58,14 +58,19 @@ Contents
   moment-matched over the draws (:func:`collapse_draws`) and sampled :data:`LEAF_SAMPLES` times per
   first-level response; what ``PlannerConfig(planner="confident")`` minimises in
   :func:`scrppl.planning.choose_view` and the trial runner.
+* :func:`rollout_scores`, :func:`rollout_values` -- the rollout planner
+  (``PlannerConfig(planner="rollout")``): each candidate next, then the other views in a random order,
+  valued over sampled futures; not myopic, and no expectimax tree.
 * :func:`choose_view_confident` -- :func:`scrppl.planning.choose_view`'s interface to either: the planner
   (default) or the exact expectimax of :func:`expected_remaining_views` (``method="expectimax"``).
 
 The exact expectimax costs ``(C M)^depth`` for ``C`` candidates and ``M`` responses per view, times the
 ``N O A`` mixture components at each; it is the reference the tests hold the planner to, not a planner
 for a trial. The planner's cost is ``C M N O A`` for the first level plus ``C^2 M L O A`` for the second
-(``L`` leaf responses): about 2-5 ms a decision at the experiment's setting (8 azimuths, 16 states,
-32 draws, ``M = 32``, ``L = 8``) on one core; see ``benchmarks/results/confident-planner.json``.
+(``L`` leaf responses): about 2-7 ms a decision at the experiment's setting (8 azimuths, 16 states,
+32 draws, ``M = 32``, ``L = 8``) on one core, the most with the instance-aware filter. The rollout
+planner's is ``K C^2`` prefixes of ``O A`` states (naive Bayes, about 2-3 ms at ``K = 64``) or ``N O A``
+(instance-aware, about 50 ms). See ``benchmarks/results/confident-planner.json``.
 """
 
 from __future__ import annotations
@@ -88,6 +93,7 @@ from scrppl.sim.metrics import CONFIDENCE
 __all__ = [
     "CONFIDENT_DEPTH",
     "CONFIDENT_PLANNER",
+    "ROLLOUT_PLANNER",
     "LEAF_SAMPLES",
     "RESPONSES",
     "LEAVES",
@@ -100,6 +106,8 @@ __all__ = [
     "optimal_remaining_views",
     "collapse_draws",
     "confident_scores",
+    "rollout_scores",
+    "rollout_values",
     "choose_view_confident",
 ]
 
@@ -107,6 +115,8 @@ __all__ = [
 CONFIDENT_DEPTH = 2
 #: The confident planner with ``M = 32`` first-level responses per candidate (:func:`confident_scores`).
 CONFIDENT_PLANNER = PlannerConfig("confident", n_samples=32)
+#: The rollout planner with ``K = 64`` futures per decision (:func:`rollout_scores`).
+ROLLOUT_PLANNER = PlannerConfig("rollout", n_samples=64)
 #: Second-level responses per first-level response and candidate in :func:`confident_scores`.
 LEAF_SAMPLES = 8
 #: How the expectation over the next response is taken: common random numbers or Gauss-Hermite nodes.
@@ -923,3 +933,179 @@ def choose_view_confident(
     cost = P.travel_cost(views, current, config.motion_cost, model.mu.shape[2])
     idx, found, scores = P.select_view(score, cost, valid)
     return views[idx], found, scores
+
+
+# ------------------------------------------------------------------------------------------------
+# the rollout planner: sampled futures, a random order after the first view
+
+
+def _set_log_joint(model, belief, views, f):
+    """Per-view pieces from which the normalised ``log p(o, theta | F, f_S)`` of any set ``S`` is a sum.
+
+    Returns ``(base, terms)``: ``base`` of shape ``X`` and ``terms``, a tuple of arrays ``(..., C) + X``
+    (one row per candidate, ``f`` of shape ``(..., C)``), such that :func:`_set_from_sums` of ``base`` and
+    the sums of ``terms`` over the views of ``S`` is the filter's unnormalised log joint after seeing
+    ``f_S``:
+
+    * naive Bayes (``X = (O, A)``): ``terms = (log p(f_c | o, theta),)``, the increments of eq. 3;
+    * instance-aware (``X = (N, O, A)``): with ``r_c = f_c - mu_c - m`` and ``a_c = 1 / sigma_c^2``,
+      ``log p(f_S | n, o, theta) = sum_S log N(r_c; 0, sigma_c^2) - log(1 + v A) / 2 + v B^2 / (2 (1 + v A))``
+      where ``A = sum_S a_c`` and ``B = sum_S a_c r_c`` (the instance effect ``u ~ N(m, v)`` integrated
+      out of the views of ``S`` together), so ``terms = (log N(r_c), a_c, a_c r_c)``.
+    """
+    mu, sigma2, tau2 = jax.vmap(lambda v: B.view_parameters(model, v[0], v[1], v[2]))(views)
+    fx = f[..., None, None, None]
+    if isinstance(belief, B.NaiveBayesBelief):
+        lp = normal_log_density(fx, mu, sigma2 + tau2)  # (..., C, N, O, A)
+        inc = logsumexp(lp, axis=-3) - math.log(mu.shape[1])
+        return belief.log_belief, (inc,)
+    r = fx - mu - belief.u_mean
+    a = 1.0 / sigma2
+    return belief.log_evidence, (normal_log_density(r, 0.0, sigma2), a + 0.0 * r, a * r)
+
+
+def _set_from_sums(belief, base, sums):
+    """Normalised class probabilities ``(..., O)`` from :func:`_set_log_joint`'s base and summed terms."""
+    if isinstance(belief, B.NaiveBayesBelief):
+        lj = base + sums[0]
+    else:
+        ll, a_sum, b_sum = sums
+        v = belief.u_var
+        ev = base + ll - 0.5 * jnp.log1p(v * a_sum) + 0.5 * v * b_sum**2 / (1.0 + v * a_sum)
+        lj = belief.log_prior + logsumexp(ev, axis=-3)
+    lj = lj - logsumexp(lj, axis=(-2, -1), keepdims=True)
+    return jnp.exp(logsumexp(lj, axis=-1))
+
+
+def rollout_scores(
+    key: jax.Array,
+    model: ResponseModel,
+    belief,
+    views,
+    valid,
+    *,
+    n_futures: int = 64,
+    threshold: float = CONFIDENCE,
+) -> jax.Array:
+    """The rollout planner's score of every candidate: expected views still to count, shape ``(C,)``.
+
+    A one-step *rollout* (policy improvement on a base policy): for each candidate ``c``, the expected
+    sum of step costs (:func:`step_cost`) when ``c`` is looked at next and the remaining candidates
+    after it in a random order, under the filter's own model. The expectation is over ``n_futures``
+    futures (:func:`sample_future`: a true state and a response at *every* candidate), shared by all
+    candidates together with each future's random order of the others (common random numbers). The
+    step costs are those of the filter's belief after each prefix of the sequence (``s = P(not yet
+    confident | F)``, the true class averaged out), which has less variance than counting the sampled
+    class's views.
+
+    Picking the candidate of least score is at least as good as the random order itself under the model
+    (the rollout theorem), up to Monte Carlo error, and unlike the greedy planners it values a view by
+    what it does to *all* the views that follow. No belief is updated view by view: every prefix's
+    posterior is a sum of per-view terms (:func:`_set_log_joint`, exact for both filters), so the cost is
+    one cumulative sum over ``K C^2`` states rather than ``K C^2`` filter steps.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the futures and the orders.
+    model, belief
+        The response model and the current belief (either filter).
+    views, valid
+        Candidate views ``(C, 3)`` and which may be looked at ``(C,)``.
+    n_futures
+        ``K``, futures per decision (``PlannerConfig.n_samples`` in :func:`scrppl.planning.choose_view`).
+    threshold
+        The confidence threshold.
+
+    Returns
+    -------
+    ``(C,)`` scores, ``+inf`` for invalid candidates.
+    """
+    if isinstance(n_futures, bool) or not isinstance(n_futures, int | np.integer) or n_futures < 1:
+        raise ValueError(f"n_futures must be a positive integer, got {n_futures!r}")
+    if not 0.0 < float(threshold) < 1.0:
+        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
+    P.check_planner_inputs(model, belief, views=views)
+    if np.shape(valid) != np.shape(views)[:1]:
+        raise ValueError(
+            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
+        )
+    return _rollout_jit(
+        key, model, belief, jnp.asarray(views), jnp.asarray(valid, bool),
+        n_futures=int(n_futures), threshold=float(threshold),
+    )  # fmt: skip
+
+
+@partial(jax.jit, static_argnames=("n_futures", "threshold"))
+def _rollout_jit(key, model, belief, views, valid, n_futures, threshold):
+    """:func:`rollout_scores` without the input checks (compiled)."""
+    return _rollout(key, model, belief, views, valid, n_futures, threshold)
+
+
+def _rollout(key, model, belief, views, valid, n_futures, threshold):
+    """The scores of :func:`rollout_scores` (traceable)."""
+    n_c = views.shape[0]
+    k_f, k_o = jax.random.split(key)
+    _, u_state, u_draw, z, eps, _ = _future_draws(k_f, n_futures, n_c, n_c, model.mu.dtype)
+    _, f = jax.vmap(lambda a, b, c, d: sample_future(model, belief, views, a, b, c, d))(
+        u_state, u_draw, z, eps
+    )  # (K, C)
+    rank = jnp.argsort(jax.random.uniform(k_o, (n_futures, n_c)), axis=-1)
+    rank = jnp.argsort(rank, axis=-1)  # each future's random order of the candidates
+    value = rollout_values(model, belief, views, valid, f, rank, threshold=threshold)
+    return jnp.where(valid, jnp.mean(value, axis=0), jnp.inf)
+
+
+def rollout_values(model: ResponseModel, belief, views, valid, f, rank, *, alive=None,
+                   threshold: float = CONFIDENCE) -> jax.Array:  # fmt: skip
+    """Sum of step costs of each candidate first, then the others by ``rank``, for known futures.
+
+    For future ``k`` (responses ``f[k]`` at every candidate) and candidate ``c``, the sequence is ``c``,
+    then the other valid candidates in increasing ``rank[k]``; the value is ``sum_j s_j`` over its first
+    ``r`` prefixes (``r`` the number of valid candidates), ``s_j`` the :func:`step_cost` of the filter's
+    belief after the first ``j`` views of the sequence (``alive`` carried along, from
+    :func:`initial_alive` by default). The mean over futures drawn by :func:`sample_future` is the
+    score of :func:`rollout_scores`.
+
+    Parameters
+    ----------
+    model, belief
+        The response model and the current belief (either filter).
+    views, valid
+        Candidate views ``(C, 3)`` and which may be looked at ``(C,)``.
+    f, rank
+        Responses ``(K, C)`` and each future's order of the candidates ``(K, C)`` (any integers; ties
+        keep index order).
+    alive
+        Flags ``(O,)`` of the classes not yet confident.
+    threshold
+        The confidence threshold.
+
+    Returns
+    -------
+    ``(K, C)`` values (those of invalid candidates are meaningless).
+    """
+    n_k, n_c = f.shape
+    alive = initial_alive(belief, threshold) if alive is None else jnp.asarray(alive, bool)
+    big = jnp.max(rank) + 1
+    rank = jnp.where(valid, rank, big + rank)  # invalid candidates last
+    # the sequence of candidate c: c first, then the others by rank -> (K, C, C) view indices
+    first = jnp.eye(n_c, dtype=bool)
+    seq = jnp.argsort(jnp.where(first[None], -1, rank[:, None, :]), axis=-1, stable=True)
+    base, terms = _set_log_joint(model, belief, views, f)
+
+    def prefix_sums(t):  # (K, C) + X -> (K, C, C) + X: the sums over the first j + 1 views
+        idx = seq.reshape((n_k, n_c * n_c) + (1,) * (t.ndim - 2))
+        picked = jnp.take_along_axis(t, idx, axis=1).reshape((n_k, n_c, n_c) + t.shape[2:])
+        return jnp.cumsum(picked, axis=2)
+
+    p_class = _set_from_sums(belief, base, tuple(prefix_sums(t) for t in terms))  # (K, C, C, O)
+    alive = alive & (jnp.cumsum(p_class > threshold, axis=2) == 0)
+    s = jnp.sum(jnp.where(alive, p_class, 0.0), axis=-1)  # (K, C, C)
+    counted = jnp.arange(n_c) < jnp.sum(valid)
+    return jnp.sum(jnp.where(counted, s, 0.0), axis=-1)
+
+
+def _rollout_scores(key, model, belief, views, valid, config: PlannerConfig) -> jax.Array:
+    """The scores of ``PlannerConfig(planner="rollout")`` in :func:`scrppl.planning.choose_view`."""
+    return _rollout(key, model, belief, views, valid, config.n_samples, CONFIDENCE)

@@ -16,6 +16,9 @@ set of candidate robot views, and returns the view to visit next.
 * ``"confident"`` -- not an entropy planner: the view that minimises the expected *views to confidence*
   (``p(true class) > 0.95``), by depth-limited expectimax with sampled responses
   (``scrppl.confident``; ``n_samples`` responses per level).
+* ``"rollout"`` -- also for views to confidence: each candidate looked at next, then the others in a
+  random order, scored over ``n_samples`` sampled futures of the filter's model
+  (:func:`scrppl.confident.rollout_scores`).
 
 Objectives (:data:`scrppl.belief.OBJECTIVES`): ``"joint"`` ``H(o, theta)`` (eq. 5), ``"class"`` ``H(o)``
 (the quantity of Fig. 5 right) and ``"pose"`` ``H(theta)``.
@@ -83,7 +86,7 @@ __all__ = [
 ]
 
 #: Planner names accepted by :func:`choose_view`.
-PLANNERS = ("random", "sampled", "quadrature", "plug_in", "confident")
+PLANNERS = ("random", "sampled", "quadrature", "plug_in", "confident", "rollout")
 #: Planners that score candidates by an expected entropy (all but ``"random"``).
 ENTROPY_PLANNERS = ("sampled", "quadrature", "plug_in")
 #: Candidate-set modes.
@@ -632,7 +635,7 @@ def choose_view(
         ``False`` when no candidate was left (then ``view`` is meaningless and must not be observed).
     scores
         Score of each candidate ``(C,)`` (``+inf`` for invalid ones; zeros for ``"random"``; expected
-        remaining views, not nats, for ``"confident"``).
+        remaining views, not nats, for ``"confident"`` and ``"rollout"``).
     """
     # values here, once per call; the shapes of the belief and the masks (known while tracing) are
     # checked when the compiled function is traced, which costs nothing on later calls
@@ -653,10 +656,12 @@ def _choose_view(
     if config.planner == "random":
         idx, found = random_unseen_view(key, valid)
         return views[idx], found, jnp.where(valid, 0.0, jnp.inf)
-    if config.planner == "confident":
-        from scrppl.confident import _confident_scores  # here: scrppl.confident imports this module
+    if config.planner in ("confident", "rollout"):
+        # imported here: scrppl.confident imports this module
+        from scrppl.confident import _confident_scores, _rollout_scores
 
-        h = _confident_scores(key, model, belief, views, valid, config)
+        scorer = _confident_scores if config.planner == "confident" else _rollout_scores
+        h = scorer(key, model, belief, views, valid, config)
         cost = travel_cost(views, current, motion_cost, model.mu.shape[2])
         idx, found, scores = select_view(h, cost, valid)
         return views[idx], found, scores

@@ -483,9 +483,24 @@ def test_confident_planner_in_choose_view_is_the_standalone_planner(key):
     assert np.isinf(scores[[1, 3]]).all() and np.isfinite(scores[[0, 2]]).all()
     # the entropy planners' interface is untouched: "confident" is a planner, not an entropy estimate
     assert "confident" in P.PLANNERS and "confident" not in P.ENTROPY_PLANNERS
+    # the rollout planner likewise: choose_view minimises rollout_scores with the same key
+    config = C.ROLLOUT_PLANNER._replace(n_samples=16)
+    got = P.choose_view(key, model, b, here, visited, avail, config)
+    views, valid = P.candidate_views(here, visited, avail, "azimuth")
+    want = C.rollout_scores(key, model, b, views, valid, n_futures=16)
+    np.testing.assert_allclose(got[2], want, rtol=1e-6)
+    assert int(got[0][0]) == int(np.argmin(want)) and np.isinf(np.asarray(want)[[1, 3]]).all()
+    assert "rollout" in P.PLANNERS and "rollout" not in P.ENTROPY_PLANNERS
+    with pytest.raises(ValueError, match="n_futures must be a positive integer"):
+        C.rollout_scores(key, model, b, views, valid, n_futures=0)
 
 
-def test_confident_planner_runs_in_the_trial_runner_above_the_clairvoyant_bound(key):
+@pytest.mark.parametrize(
+    "config",
+    [C.CONFIDENT_PLANNER._replace(n_samples=8), C.ROLLOUT_PLANNER._replace(n_samples=8)],
+    ids=["confident", "rollout"],
+)
+def test_confident_planners_run_in_the_trial_runner_above_the_clairvoyant_bound(key, config):
     model = tiny_model(0.45)
     rng = np.random.default_rng(3)
     n = 4
@@ -497,7 +512,6 @@ def test_confident_planner_runs_in_the_trial_runner_above_the_clairvoyant_bound(
         jnp.asarray(pose), jnp.asarray(np.c_[rng.integers(0, A, n), np.zeros((n, 2), int)]),
         jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
     )  # fmt: skip
-    config = C.CONFIDENT_PLANNER._replace(n_samples=8)
     rec = run_trials(key, model, trials, config, filter="instance", devices=1)
     assert np.asarray(rec.observed).all()
     assert all(sorted(np.asarray(rec.views)[t, :, 0].tolist()) == list(range(A)) for t in range(n))
@@ -621,3 +635,87 @@ def test_view_information_equals_scipy_integration():
         want = integrate.quad(integrand, -15, 15, limit=200, epsabs=1e-10)[0]
         np.testing.assert_allclose(got[a], want, atol=1e-4)
     assert np.all(got >= -1e-6) and np.all(got <= stats.entropy(prior) + 1e-6)
+
+
+# ------------------------------------------------------------------------------------------------
+# the rollout planner
+
+
+def brute_rollout_value(model, kind, start, f0, alive, cand, seq_fs):
+    """Sum of step costs along each future's sequence of views (..., len(cand)), by this file's own
+    posterior: seq_fs (..., r) the responses at the views cand in that order."""
+    total = 0.0
+    alive = np.asarray(alive).reshape((-1,) + (1,) * (seq_fs.ndim - 1))
+    for j in range(1, len(cand) + 1):
+        fs = np.concatenate([np.full(seq_fs.shape[:-1] + (1,), f0), seq_fs[..., :j]], axis=-1)
+        p = class_posterior(model, kind, [start, *cand[:j]], fs)  # (O, ...)
+        alive = alive & (p <= THRESHOLD)
+        total = total + np.sum(p * alive, axis=0)
+    return total
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_rollout_values_equal_enumeration_along_each_sequence(kind):
+    """Each future's value for each first view: the prefix posteriors from sums of per-view terms equal
+    the joint densities of the whole history, with a candidate that cannot be looked at, ties in the
+    order and a class already confident."""
+    model, start, f0, b, _ = tiny(kind)
+    views, valid = views_valid(start)
+    rng = np.random.default_rng(11)
+    k = 12
+    f = rng.normal(0.8, 1.2, (k, A))
+    rank = rng.integers(0, 3, (k, A))  # ties keep index order
+    for ok, alive in ((np.asarray(valid), np.ones(2, bool)),
+                      (np.asarray(valid) & (np.arange(A) != 3), np.array([True, False]))):  # fmt: skip
+        got = np.asarray(C.rollout_values(
+            model, b, views, jnp.asarray(ok), jnp.asarray(f, jnp.float32), jnp.asarray(rank),
+            alive=jnp.asarray(alive), threshold=THRESHOLD,
+        ))  # fmt: skip
+        cand = [v for v in range(A) if ok[v]]
+        for i in range(k):
+            for c in cand:
+                seq = [c, *sorted((v for v in cand if v != c), key=lambda v: (rank[i, v], v))]
+                want = brute_rollout_value(model, kind, start, f0, alive, seq, f[i, seq])
+                np.testing.assert_allclose(got[i, c], want, atol=2e-5)
+    assert got.std() > 0.05  # the futures differ
+
+
+def independent_futures(model, kind, start, f0, rng, k):
+    """Futures of the tiny grid's model after f0, sampled without scrppl: a state from the posterior,
+    then every view's response (naive Bayes: independent marginals; instance: the instance effect from
+    its posterior given f0, shared by all views)."""
+    mu, sigma = (np.asarray(x, np.float64)[0, :, :, 0, 0] for x in model[:2])  # (O, A)
+    tau = np.asarray(model.tau, np.float64)[0]
+    lj = log_lik(model, kind, [start], [f0])  # (O, A)
+    p = np.exp(lj - logsumexp(lj)).ravel()
+    idx = rng.choice(p.size, size=k, p=p / p.sum())
+    o, theta = idx // A, idx % A
+    rel = (np.arange(A)[None, :] - theta[:, None]) % A  # (k, A)
+    m, s2 = mu[o[:, None], rel], sigma[o[:, None], rel] ** 2
+    t2 = tau[o] ** 2
+    if kind == "naive_bayes":
+        return m + np.sqrt(s2 + t2[:, None]) * rng.normal(size=(k, A))
+    s0 = sigma[o, (start - theta) % A] ** 2
+    u_mean = t2 / (t2 + s0) * (f0 - mu[o, (start - theta) % A])
+    u = u_mean + np.sqrt(t2 * s0 / (t2 + s0)) * rng.normal(size=k)
+    return m + u[:, None] + np.sqrt(s2) * rng.normal(size=(k, A))
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_rollout_scores_are_the_value_of_each_view_then_a_random_order(kind, key):
+    """With many futures the scores are each candidate's value when looked at first, the others after it
+    in a uniformly random order: here by independent sampling and every order enumerated."""
+    model, start, f0, b, _ = tiny(kind)
+    views, valid = views_valid(start)
+    k = 4000
+    got = np.asarray(C.rollout_scores(key, model, b, views, valid, n_futures=k))
+    assert np.isinf(got[start])
+    f = independent_futures(model, kind, start, f0, np.random.default_rng(5), k)
+    alive = np.ones(2, bool)
+    cand = [v for v in range(A) if v != start]
+    for c in cand:
+        orders = [[c, *rest] for rest in itertools.permutations([v for v in cand if v != c])]
+        values = [brute_rollout_value(model, kind, start, f0, alive, s, f[:, s]) for s in orders]
+        want = np.mean(values)
+        se = np.std(np.mean(values, axis=0)) / np.sqrt(k)
+        assert abs(got[c] - want) < 5 * se + 0.01, (c, got[c], want, se)
