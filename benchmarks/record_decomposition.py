@@ -21,8 +21,19 @@ target to use both cores) in the world each filter assumes, kept as ``filter_wor
         --rows random,greedy_joint,confident,clairvoyant --model-world --world filter --model-optimal
     python benchmarks/record_decomposition.py --filter-world-from RESULTS_bicycle RESULTS_car ...
 
+The rollout planner (``PlannerConfig("rollout")``, sampled futures; about 65 ms a decision with the
+instance-aware filter, so a few hundred trials) on the real responses and in the filter world, kept as
+``rollout`` and ``rollout_filter_world``::
+
+    scrppl decompose --profile full --out RESULTS_T --trials 600 --targets T \
+        --rows random,greedy_joint,rollout,clairvoyant
+    scrppl decompose --profile full --out WORLD_T --trials 250 --targets T \
+        --rows random,greedy_joint,rollout,clairvoyant --model-world --world filter
+    python benchmarks/record_decomposition.py --rollout-from RESULTS_bicycle ... \
+        --rollout-filter-world-from WORLD_bicycle ...
+
 Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
-[--filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
+[--filter-world-from DIR ...] [--rollout-from DIR ...] [--rollout-filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
 it is not ``RESULTS``; ``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept
 as ``oracle``; ``--filter-world-from``: folders of ``decomposition-filter-world.json``, their targets
 merged). Without ``RESULTS`` the record's other parts are kept as they are.
@@ -77,6 +88,14 @@ def main(argv=None) -> None:
         "--filter-world-from", type=Path, nargs="+", default=None,
         help="folders of decomposition-filter-world.json (--world filter --model-optimal runs)",
     )  # fmt: skip
+    ap.add_argument(
+        "--rollout-from", type=Path, nargs="+", default=None,
+        help="folders of decomposition.json with the rollout row (real responses)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--rollout-filter-world-from", type=Path, nargs="+", default=None,
+        help="folders of decomposition-filter-world.json with the rollout row",
+    )  # fmt: skip
     ap.add_argument("--world-from", type=Path, default=None,
                     help="folder of decomposition-model-world.json (default: RESULTS)")  # fmt: skip
     ap.add_argument(
@@ -89,9 +108,11 @@ def main(argv=None) -> None:
     if args.results is None:
         if args.out.exists():
             old = json.loads(args.out.read_text())
-        if args.filter_world_from is None or "real" not in old:
+        parts = (args.filter_world_from, args.rollout_from, args.rollout_filter_world_from)
+        if all(p is None for p in parts) or "real" not in old:
             raise SystemExit(
-                "give a results folder, or --filter-world-from with an existing record to add to"
+                "give a results folder, or --filter-world-from, --rollout-from or "
+                "--rollout-filter-world-from with an existing record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
     else:
@@ -115,6 +136,23 @@ def main(argv=None) -> None:
         if filter_world["settings"].get("world") != "filter":
             raise SystemExit(f"{args.filter_world_from[0]}: not a --world filter run")
         filter_world["machine"] = machine_description()
+    rollout = {
+        "rollout": old.get("rollout"),
+        "rollout_filter_world": old.get("rollout_filter_world"),
+    }
+    for part, dirs, name in (
+        ("rollout", args.rollout_from, "decomposition.json"),
+        ("rollout_filter_world", args.rollout_filter_world_from, "decomposition-filter-world.json"),
+    ):
+        if dirs is None:
+            continue
+        run = merge_targets([d / name for d in dirs])
+        if "rollout" not in run["settings"].get("rows", []):
+            raise SystemExit(f"{dirs[0] / name}: has no rollout row")
+        if (part == "rollout_filter_world") != (run["settings"].get("world") == "filter"):
+            raise SystemExit(f"{dirs[0] / name}: not the world {part} expects")
+        run["machine"] = machine_description()
+        rollout[part] = run
     record = {
         "what": (
             "views to confidence from a random view to the clairvoyant bound in the paper regime "
@@ -131,6 +169,7 @@ def main(argv=None) -> None:
         "model_world": world,
         "oracle": oracle,
         "filter_world": filter_world,
+        **rollout,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

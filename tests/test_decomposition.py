@@ -683,6 +683,31 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
         mod.main(
             ["--filter-world-from", str(tmp_path / "car"), str(tmp_path / "car"), "--out", str(out)]
         )
+    # the rollout planner's runs: real responses and the filter world, each checked for its row
+    rows = {"trials": TRIALS, "rows": ["random", "rollout"]}
+    (tmp_path / "roll").mkdir()
+    (tmp_path / "roll" / "decomposition.json").write_text(
+        json.dumps({"seed": SEED, "settings": rows, "targets": {"car": entry}})
+    )
+    (tmp_path / "car" / "decomposition-filter-world.json").write_text(
+        json.dumps(
+            {"seed": SEED, "settings": dict(rows, world="filter"), "targets": {"car": entry}}
+        )
+    )
+    mod.main(["--rollout-from", str(tmp_path / "roll"), "--out", str(out)])
+    mod.main(["--rollout-filter-world-from", str(tmp_path / "car"), "--out", str(out)])
+    third = json.loads(out.read_text())
+    assert third["rollout"]["targets"] == {"car": entry} and third["rollout"]["settings"] == rows
+    assert third["rollout_filter_world"]["settings"]["world"] == "filter"
+    assert third["filter_world"] == again["filter_world"] and third["real"] == record["real"]
+    (tmp_path / "rollw").mkdir()
+    (tmp_path / "rollw" / "decomposition.json").write_text(
+        (tmp_path / "car" / "decomposition-filter-world.json").read_text()
+    )
+    with pytest.raises(SystemExit, match="not the world rollout expects"):
+        mod.main(["--rollout-from", str(tmp_path / "rollw"), "--out", str(out)])
+    with pytest.raises(SystemExit, match="has no rollout row"):
+        mod.main(["--rollout-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="has no oracle rows"):
         mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):

@@ -12,6 +12,9 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``two_step``       two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
 ``confident``      :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
                    depth 2): the metric itself
+``rollout``        :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
+                   follow, by sampled futures of the model (``K = 64``, each candidate first, then a
+                   random order): not myopic
 ``oracle_random``  a random unseen view, the filter with an *oracle model* (below): against ``random``,
                    what the better model does for the filter alone
 ``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
@@ -64,7 +67,7 @@ import xarray as xr
 from tqdm.auto import tqdm
 
 from scrppl.belief import init_belief, joint_log_belief
-from scrppl.confident import CONFIDENT_PLANNER, view_information
+from scrppl.confident import CONFIDENT_PLANNER, ROLLOUT_PLANNER, view_information
 from scrppl.extensions.lookahead import choose_view_two_step
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.planning import PlannerConfig, check_planner_config
@@ -106,8 +109,8 @@ __all__ = [
 
 #: The rows of the decomposition, top to bottom.
 ROWS = (
-    "random", "greedy_joint", "greedy_class", "two_step", "confident", "oracle_random", "oracle",
-    "clairvoyant",
+    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "oracle_random",
+    "oracle", "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
 ORACLE_ROWS = ("oracle_random", "oracle")
@@ -139,6 +142,7 @@ _ROW_TITLES = {
     "greedy_class": "greedy, H(o)",
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
+    "rollout": "rollout planner (views to confidence, sampled futures)",
     "oracle_random": "random unseen view, oracle model (fitted on the test instances)",
     "oracle": "confident planner, oracle model (fitted on the test instances)",
     "clairvoyant": "clairvoyant bound",
@@ -183,6 +187,7 @@ def decomposition_planners(
         "greedy_class": PlannerConfig("sampled", "class", mode=mode, n_samples=n_samples),
         "two_step": PlannerConfig("sampled", "class", mode=mode, n_samples=lookahead_samples),
         "confident": confident._replace(mode=mode),
+        "rollout": ROLLOUT_PLANNER._replace(mode=mode),
     }
     return {row: check_planner_config(c) for row, c in configs.items()}
 
