@@ -93,6 +93,7 @@ def main() -> int:
     configs = {
         "confident_M32": (C.CONFIDENT_PLANNER, None),
         "confident_M256_default_n_samples": (P.PlannerConfig("confident"), None),
+        "rollout_K64": (C.ROLLOUT_PLANNER, None),
         "exact_expectimax_M32_for_scale": (C.CONFIDENT_PLANNER, "expectimax"),
         "sampled_entropy_M256_for_scale": (P.PlannerConfig("sampled"), None),
     }
