@@ -119,3 +119,17 @@ def test_readme_python_blocks_are_all_executed_or_explained():
             continue
         assert any(marker in block for marker in not_run), f"a README block no test runs:\n{block}"
     assert len(blocks) == len(executed) + len(not_run)
+
+
+def test_readme_counts_the_exercises_there_are():
+    """The README's exercise count and range per chapter are those of the notebooks and the registry."""
+    from scrppl.exercises import list_exercises
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    m = re.search(r"end with (\d+) exercises \((\w+) to (\w+) each\)", readme)
+    assert m, "the README no longer states the number of exercises"
+    words = ["zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine"]
+    notebooks = sorted((Path(__file__).parents[1] / "notebooks").glob("[0-9][0-9]-*.md"))
+    per_page = [p.read_text().count("{exercise-start}") for p in notebooks]
+    assert int(m.group(1)) == sum(per_page) == len(list_exercises())
+    assert (words.index(m.group(2)), words.index(m.group(3))) == (min(per_page), max(per_page))

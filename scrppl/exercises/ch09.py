@@ -1,8 +1,9 @@
 """Checks for the exercises of chapter 9 (the experiment): reading paired trials.
 
 Views to confidence, the paper's TP-minus-TN statistic, paired against unpaired bootstrap intervals
-of the difference between two planners run on the same trials, and the room hindsight has over any policy. Every reference is a function of
-:mod:`scrppl.sim.metrics`; the inputs are small synthetic per-step records (no planner is run here).
+of the difference between two planners run on the same trials, the room hindsight has over any policy, and
+the value a rollout gives one order of views. Every reference is a function of :mod:`scrppl.sim.metrics`
+(9.6: :func:`scrppl.confident.rollout_values`); the inputs are small synthetic per-step records (no planner is run here).
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ import numpy as np
 
 from scrppl.exercises._core import Case, Mistake, check_function, exercise
 
-__all__ = ["check_9_1", "check_9_2", "check_9_3", "check_9_4", "check_9_5", "planner_pairs"]
+__all__ = [
+    "check_9_1", "check_9_2", "check_9_3", "check_9_4", "check_9_5", "check_9_6", "planner_pairs",
+]  # fmt: skip
 
 
 # -- 9.1 views to confidence ------------------------------------------------------------------------
@@ -609,3 +612,136 @@ def check_9_5(hindsight_room) -> str:
         convert=_room_convert,
     )
     return f"agrees with enumeration of every outcome on {n} inputs"
+
+
+# -- 9.6 the value of one order of views ----------------------------------------------------------
+def _order_ref(mu, sigma, seen, order, future, threshold=0.95):
+    """:func:`scrppl.confident.rollout_values` of ``order[0]`` first, then the rest of ``order``."""
+    import jax.numpy as jnp
+
+    from scrppl import belief as B
+    from scrppl.confident import rollout_values
+    from scrppl.models.response import ResponseModel
+
+    mu = np.asarray(mu, np.float64)
+    n_o, n_a = mu.shape
+    m = jnp.asarray(mu[None, :, :, None, None], jnp.float32)
+    model = ResponseModel(m, jnp.full(m.shape, float(sigma), jnp.float32), jnp.zeros((1, n_o)))
+    b = B.init_belief("naive_bayes", model)
+    for phi, f in seen.items():
+        b = B.update(model, b, jnp.float32(f), int(phi))
+    views = jnp.asarray([[phi, 0, 0] for phi in range(n_a)])
+    valid = np.zeros(n_a, bool)
+    valid[list(order)] = True
+    rank = np.full(n_a, n_a)
+    rank[list(order)] = np.arange(len(order))
+    f = np.array([float(future.get(phi, 0.0)) for phi in range(n_a)])
+    values = rollout_values(
+        model, b, views, jnp.asarray(valid), jnp.asarray(f[None], jnp.float32),
+        jnp.asarray(rank[None]), threshold=float(threshold),
+    )  # fmt: skip
+    return float(values[0, order[0]])
+
+
+def _order_brute(mu, sigma, seen, order, future, threshold=0.95, *, carry=True, flip=False,
+                 use_seen=True, variance=False, all_classes=False):  # fmt: skip
+    """The sum of step costs by brute force, with switches for the registered mistakes."""
+    from scipy.stats import norm
+
+    mu = np.asarray(mu, float)
+    n_o, n_a = mu.shape
+    sd = np.sqrt(sigma) if variance else sigma
+
+    def posterior(responses):
+        joint = np.ones((n_o, n_a))
+        for phi, f in responses.items():
+            for pose in range(n_a):
+                rel = (pose - phi) % n_a if flip else (phi - pose) % n_a
+                joint[:, pose] *= norm.pdf(f, mu[:, rel], sd)
+        return joint.sum(axis=1) / joint.sum()
+
+    responses = dict(seen) if use_seen else {}
+    alive = posterior(responses) <= threshold
+    total = 0.0
+    for phi in order:
+        responses[phi] = future[phi]
+        p = posterior(responses)
+        alive = (alive & (p <= threshold)) if carry else (p <= threshold)
+        total += p.sum() if all_classes else p[alive].sum()
+    return total
+
+
+def _order_cases() -> list[Case]:
+    rng = np.random.default_rng(96)
+    toy = [[0.0, 0.0, 0.0], [3.0, 0.5, 0.5]]
+    dips = [[0.0, 0.0, 0.0, 0.0], [3.8, 2.0, 1.7, 2.5]]
+    mu3 = np.vstack([np.zeros(6), rng.uniform(0.0, 3.0, 6), rng.uniform(-1.0, 2.0, 6)]).round(2)
+    return [
+        Case((toy, 1.0, {0: 0.4}, [1, 2], {1: 2.9, 2: 0.3}), "the chapter's toy, azimuth 1 first"),
+        Case((toy, 1.0, {0: 0.4}, [2, 1], {1: 2.9, 2: 0.3}), "the chapter's toy, azimuth 2 first"),
+        Case(
+            (dips, 1.0, {0: -1.0}, [3, 1, 2], {1: 1.6, 2: 4.5, 3: 1.8}),
+            "a class crosses 0.95 and falls back",
+        ),  # fmt: skip
+        Case((dips, 0.6, {0: 0.8, 2: 1.1}, [1, 3], {1: 2.2, 3: 0.1}), "two views seen, sd 0.6"),
+        Case(
+            (mu3, 1.3, {4: 1.0}, [0, 5, 1, 3], {0: 0.2, 1: 2.4, 3: -0.4, 5: 1.7}),
+            "three classes, six azimuths",
+        ),  # fmt: skip
+        Case((toy, 1.0, {0: 0.4}, [1, 2], {1: 2.9, 2: 0.3}), "threshold 0.8", {"threshold": 0.8}),
+    ]
+
+
+_ORDER_MISTAKES = [
+    Mistake(
+        "a class that was confident once stays counted out (alive carries over): the trial ended "
+        "when it first crossed the threshold, even if the belief falls back later.",
+        lambda *a, **k: _order_brute(*a, **k, carry=False),
+    ),
+    Mistake(
+        "sum p(o) only over the classes not yet confident: summing every class gives 1 at each step.",
+        lambda *a, **k: _order_brute(*a, **k, all_classes=True),
+    ),
+    Mistake(
+        "the belief starts from the responses already seen; the prior alone forgets them.",
+        lambda *a, **k: _order_brute(*a, **k, use_seen=False),
+    ),
+    Mistake(
+        "the relative azimuth of a look from phi at an object of pose theta is (phi - theta) mod A, "
+        "not (theta - phi) mod A.",
+        lambda *a, **k: _order_brute(*a, **k, flip=True),
+    ),
+    Mistake(
+        "sigma is the noise *standard deviation*: norm.pdf(f, mean, sigma), not sqrt(sigma).",
+        lambda *a, **k: _order_brute(*a, **k, variance=True),
+    ),
+]
+
+
+@exercise(
+    "9.6",
+    "The value of one order of views",
+    "medium",
+    reference=lambda: (_order_brute,),
+    wrong=lambda: [(m.fn,) for m in _ORDER_MISTAKES],
+)
+def check_9_6(order_value) -> str:
+    """Check exercise 9.6.
+
+    Compares ``order_value(mu, sigma, seen, order, future, threshold)``, the sum of step costs when the
+    views of ``order`` are looked at in turn and return ``future``, against
+    :func:`scrppl.confident.rollout_values` (a naive-Bayes filter, one draw, uniform prior).
+    """
+    n = check_function(
+        order_value,
+        _order_ref,
+        _order_cases(),
+        name="order_value(mu, sigma, seen, order, future, threshold)",
+        rtol=2e-4,
+        atol=2e-5,
+        mistakes=_ORDER_MISTAKES,
+        hint="start from p(o, pose | seen); after each view of `order` add its response, take the class "
+        "posterior p, switch off the classes with p > threshold (for good) and add the p of those "
+        "still on.",
+    )
+    return f"agrees with scrppl.confident.rollout_values on {n} inputs"
