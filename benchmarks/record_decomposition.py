@@ -84,18 +84,15 @@ def main(argv=None) -> None:
         "results", type=Path, nargs="?", default=None,
         help="a results folder holding decomposition.json (default: keep the record's)",
     )  # fmt: skip
-    ap.add_argument(
-        "--filter-world-from", type=Path, nargs="+", default=None,
-        help="folders of decomposition-filter-world.json (--world filter --model-optimal runs)",
-    )  # fmt: skip
-    ap.add_argument(
-        "--rollout-from", type=Path, nargs="+", default=None,
-        help="folders of decomposition.json with the rollout row (real responses)",
-    )  # fmt: skip
-    ap.add_argument(
-        "--rollout-filter-world-from", type=Path, nargs="+", default=None,
-        help="folders of decomposition-filter-world.json with the rollout row",
-    )  # fmt: skip
+    for flag, what in (
+        (
+            "--filter-world-from",
+            "decomposition-filter-world.json (--world filter --model-optimal runs)",
+        ),
+        ("--rollout-from", "decomposition.json with the rollout row (real responses)"),
+        ("--rollout-filter-world-from", "decomposition-filter-world.json with the rollout row"),
+    ):
+        ap.add_argument(flag, type=Path, nargs="+", default=None, help=f"folders of {what}")
     ap.add_argument("--world-from", type=Path, default=None,
                     help="folder of decomposition-model-world.json (default: RESULTS)")  # fmt: skip
     ap.add_argument(

@@ -684,6 +684,26 @@ def _class_step(log_joint, alive, threshold):
     return step_cost(jnp.exp(logsumexp(log_joint, axis=-1)), alive, threshold)
 
 
+def _check_scores_inputs(model, belief, views, valid, threshold, **counts) -> None:
+    """Check the inputs of a planner's public scores.
+
+    Positive integer ``counts`` (``None`` skipped), the threshold in ``(0, 1)``, the model, belief and
+    candidate views, and ``valid`` of shape ``(C,)``.
+    """
+    for name, value in counts.items():
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1
+        ):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if not 0.0 < float(threshold) < 1.0:
+        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
+    P.check_planner_inputs(model, belief, views=views)
+    if np.shape(valid) != np.shape(views)[:1]:
+        raise ValueError(
+            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
+        )
+
+
 def confident_scores(
     key: jax.Array,
     model: ResponseModel,
@@ -733,18 +753,9 @@ def confident_scores(
     -------
     ``(C,)`` scores, ``+inf`` for invalid candidates.
     """
-    for name, value in (("n_samples", n_samples), ("leaf_samples", leaf_samples)):
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1
-        ):
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if not 0.0 < float(threshold) < 1.0:
-        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
-    P.check_planner_inputs(model, belief, views=views)
-    if np.shape(valid) != np.shape(views)[:1]:
-        raise ValueError(
-            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
-        )
+    _check_scores_inputs(
+        model, belief, views, valid, threshold, n_samples=n_samples, leaf_samples=leaf_samples
+    )
     m2 = LEAF_SAMPLES if leaf_samples is None else int(leaf_samples)
     return _planner_scores(
         key, model, belief, jnp.asarray(views), jnp.asarray(valid, bool),
@@ -1021,15 +1032,7 @@ def rollout_scores(
     -------
     ``(C,)`` scores, ``+inf`` for invalid candidates.
     """
-    if isinstance(n_futures, bool) or not isinstance(n_futures, int | np.integer) or n_futures < 1:
-        raise ValueError(f"n_futures must be a positive integer, got {n_futures!r}")
-    if not 0.0 < float(threshold) < 1.0:
-        raise ValueError(f"threshold must lie in (0, 1), got {threshold!r}")
-    P.check_planner_inputs(model, belief, views=views)
-    if np.shape(valid) != np.shape(views)[:1]:
-        raise ValueError(
-            f"valid must have shape (C,) = {np.shape(views)[:1]}, got {np.shape(valid)}"
-        )
+    _check_scores_inputs(model, belief, views, valid, threshold, n_futures=n_futures)
     return _rollout_jit(
         key, model, belief, jnp.asarray(views), jnp.asarray(valid, bool),
         n_futures=int(n_futures), threshold=float(threshold),
