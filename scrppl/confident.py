@@ -318,6 +318,9 @@ def future_costs(model: ResponseModel, belief, alive, valid, views, steps_left, 
     ``n_rem`` (static) is the most valid candidates there can be; the beliefs of all ``2^n_rem`` sets of
     them are built one view at a time, each from its set without that view.
     """
+    if n_rem == 0:  # no view after the tree: the future is counted out, or never confident
+        rest = jnp.where(alive[o], jnp.asarray(steps_left, model.mu.dtype), 0.0)
+        return jnp.stack([rest, rest])
     order = jnp.argsort(~valid, stable=True)[:n_rem]  # valid candidates first, in index order
     ok = valid[order]
     stack = jax.tree_util.tree_map(lambda x: x[None], belief)

@@ -322,6 +322,14 @@ def test_futures_leaf_brackets_the_optimum(kind, key):
     )
     np.testing.assert_array_equal(two[ok, 0], two[ok, 1])
     np.testing.assert_allclose(two[ok, 0], exact[ok], atol=0.02)
+    # a tree over every view left: no view at the leaves, so both leaves give the exact value
+    whole = dict(depth=3, **opts)
+    horizon3 = np.asarray(C.expected_remaining_views(model, b, views, valid, **whole))
+    futures3 = np.asarray(
+        C.expected_remaining_views(model, b, views, valid, leaf="futures", key=key, **whole)
+    )
+    np.testing.assert_array_equal(horizon3[ok, 0], horizon3[ok, 1])
+    np.testing.assert_allclose(futures3[ok], horizon3[ok], rtol=1e-6)
     with pytest.raises(ValueError, match="unknown leaf"):
         C.expected_remaining_views(model, b, views, valid, depth=1, leaf="roots", key=key)
     with pytest.raises(ValueError, match="PRNG key"):
