@@ -876,6 +876,8 @@ def choose_view_confident(
     response: str | None = None,
     alive=None,
     steps_left=None,
+    leaf: str | None = None,
+    n_futures: int | None = None,
     threshold: float = CONFIDENCE,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Choose the next view to minimise the expected views to confidence (:func:`scrppl.planning.choose_view`'s interface).
@@ -887,8 +889,11 @@ def choose_view_confident(
       responses: what :func:`scrppl.planning.choose_view` chooses with the same key and a ``config``
       whose ``planner`` is ``"confident"``;
     * ``method="expectimax"``: the upper bracket of :func:`expected_remaining_views` (``depth``,
-      default :data:`CONFIDENT_DEPTH`; ``response``, default ``"sampled"``; ``alive``, ``steps_left``):
-      the exact value of the discretised expectimax, at its cost.
+      default :data:`CONFIDENT_DEPTH`; ``response``, default ``"sampled"``; ``alive``, ``steps_left``;
+      ``leaf``, default ``"horizon"``, and ``n_futures``): the exact value of the discretised
+      expectimax, at its cost. With ``leaf="futures"`` this is the policy at the upper end of the
+      model-optimal bracket (:func:`scrppl.sim.decomposition.model_optimal_brackets`), about a second a
+      decision with naive Bayes at depth 2.
 
     Parameters
     ----------
@@ -907,7 +912,7 @@ def choose_view_confident(
         ``objective`` are not used.
     method
         ``"planner"`` or ``"expectimax"``.
-    depth, response, alive, steps_left
+    depth, response, alive, steps_left, leaf, n_futures
         As in :func:`expected_remaining_views`; only with ``method="expectimax"``.
     threshold
         The confidence threshold.
@@ -926,7 +931,8 @@ def choose_view_confident(
     views, valid = P.candidate_views(current, visited, available, config.mode)
     if method == "planner":
         given = [n for n, v in (("depth", depth), ("response", response), ("alive", alive),
-                                ("steps_left", steps_left)) if v is not None]  # fmt: skip
+                                ("steps_left", steps_left), ("leaf", leaf), ("n_futures", n_futures))
+                 if v is not None]  # fmt: skip
         if given:
             raise ValueError(f"{', '.join(given)}: only with method='expectimax'")
         if key is None:
@@ -940,6 +946,7 @@ def choose_view_confident(
             depth=CONFIDENT_DEPTH if depth is None else depth,
             response="sampled" if response is None else response,
             n_samples=config.n_samples, order=config.order, threshold=threshold,
+            leaf="horizon" if leaf is None else leaf, n_futures=64 if n_futures is None else n_futures,
         )  # fmt: skip
         score = q[:, 1]
     else:

@@ -469,6 +469,8 @@ def test_choose_view_confident_refuses_expectimax_options_for_the_planner(key):
         C.choose_view_confident(key, *args, method="greedy")
     with pytest.raises(ValueError, match="needs a PRNG key"):
         C.choose_view_confident(None, *args)
+    with pytest.raises(ValueError, match="leaf, n_futures: only with method='expectimax'"):
+        C.choose_view_confident(key, *args, leaf="futures", n_futures=8)
     with pytest.raises(ValueError, match="leaf_samples must be a positive integer"):
         C.confident_scores(key, model, b, *P.candidate_views(args[2], visited, args[4], "azimuth"),
                            leaf_samples=0)  # fmt: skip
@@ -501,6 +503,28 @@ def test_confident_planner_in_choose_view_is_the_standalone_planner(key):
     assert "rollout" in P.PLANNERS and "rollout" not in P.ENTROPY_PLANNERS
     with pytest.raises(ValueError, match="n_futures must be a positive integer"):
         C.rollout_scores(key, model, b, views, valid, n_futures=0)
+
+
+def test_expectimax_with_futures_leaf_chooses_the_upper_end_of_the_bracket(key):
+    """choose_view_confident(method="expectimax", leaf="futures"): the view of least upper bracket of
+    expected_remaining_views with the same key and settings (the model-optimal bracket's policy)."""
+    model = tiny_model(0.0)
+    b = B.update(model, B.init_belief("naive_bayes", model), jnp.float32(0.9), 1, 0, 0)
+    visited = np.zeros((A, 1, 1), bool)
+    visited[1] = True
+    here, avail = jnp.asarray([1, 0, 0]), np.ones((A, 1, 1), bool)
+    config = C.CONFIDENT_PLANNER._replace(n_samples=8)
+    got = C.choose_view_confident(key, model, b, here, visited, avail, config, method="expectimax",
+                                  depth=1, leaf="futures", n_futures=16)  # fmt: skip
+    views, valid = P.candidate_views(here, visited, avail, "azimuth")
+    q = np.asarray(C.expected_remaining_views(
+        model, b, views, valid, key=key, depth=1, n_samples=8, leaf="futures", n_futures=16
+    ))  # fmt: skip
+    np.testing.assert_allclose(np.asarray(got[2])[np.asarray(valid)], q[np.asarray(valid), 1])
+    assert int(got[0][0]) == int(np.argmin(np.where(valid, q[:, 1], np.inf)))
+    horizon = C.choose_view_confident(key, model, b, here, visited, avail, config,
+                                      method="expectimax", depth=1)  # fmt: skip
+    assert not np.allclose(np.asarray(horizon[2])[1:], np.asarray(got[2])[1:])  # the leaf is used
 
 
 @pytest.mark.parametrize(
