@@ -715,3 +715,27 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     (tmp_path / "decomposition.json").write_text("{not json")
     with pytest.raises(SystemExit, match="decomposition.json: not a JSON file"):
         mod.main([str(tmp_path), "--out", str(out)])
+
+
+def test_upper_policy_record_table_and_views_by_hand():
+    """benchmarks/bench_upper_policy.py: views to confidence of a p(true) sequence, and the paired table
+    of a hand-made record (differences by hand)."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).parents[1] / "benchmarks" / "bench_upper_policy.py"
+    spec = importlib.util.spec_from_file_location("bench_upper_policy", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.views_to_confidence([0.5, 0.96, 0.2], 8) == 2
+    assert mod.views_to_confidence([0.5, 0.95, 0.9], 3) == 4  # never above: A + 1
+    record = {"runs": {"car": {"gaussian+naive_bayes": {
+        "trial": [0, 1, 2, 3], "random": [3, 5, 2, 4], "eq5": [2, 5, 2, 3], "upper": [2, 4, 2, 2],
+    }}}}  # fmt: skip
+    (row,) = mod.paired_table(record, n_boot=500)
+    assert row["trials"] == 4 and row["random"] == 3.5 and row["upper"] == 2.5
+    assert row["upper - eq5"][0] == pytest.approx(-0.5) and row["eq5 - random"][0] == pytest.approx(
+        -0.5
+    )
+    lo, hi = row["upper - random"][1:]
+    assert -2 <= lo <= -1 <= hi <= 0
