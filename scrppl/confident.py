@@ -974,15 +974,13 @@ def _set_log_joint(model, belief, views, f):
       where ``A = sum_S a_c`` and ``B = sum_S a_c r_c`` (the instance effect ``u ~ N(m, v)`` integrated
       out of the views of ``S`` together), so ``terms = (log N(r_c), a_c, a_c r_c)``.
     """
-    mu, sigma2, tau2 = jax.vmap(lambda v: B.view_parameters(model, v[0], v[1], v[2]))(views)
-    fx = f[..., None, None, None]
-    if isinstance(belief, B.NaiveBayesBelief):
-        lp = normal_log_density(fx, mu, sigma2 + tau2)  # (..., C, N, O, A)
-        inc = logsumexp(lp, axis=-3) - math.log(mu.shape[1])
-        return belief.log_belief, (inc,)
-    r = fx - mu - belief.u_mean
-    a = 1.0 / sigma2
-    return belief.log_evidence, (normal_log_density(r, 0.0, sigma2), a + 0.0 * r, a * r)
+    if isinstance(belief, B.NaiveBayesBelief):  # eq. 3's increment of each view, (K, C, O, A)
+        per_view = jax.vmap(lambda v, x: B.naive_bayes_log_likelihood(model, x, v[0], v[1], v[2]))
+        return belief.log_belief, (jax.vmap(lambda fk: per_view(views, fk))(f),)
+    mu, sigma2, _ = jax.vmap(lambda v: B.view_parameters(model, v[0], v[1], v[2]))(views)
+    r = f[..., None, None, None] - mu - belief.u_mean
+    a = jnp.broadcast_to(1.0 / sigma2, r.shape)
+    return belief.log_evidence, (normal_log_density(r, 0.0, sigma2), a, a * r)
 
 
 def _set_from_sums(belief, base, sums):
@@ -1098,6 +1096,12 @@ def rollout_values(model: ResponseModel, belief, views, valid, f, rank, *, alive
     -------
     ``(K, C)`` values (those of invalid candidates are meaningless).
     """
+    if np.ndim(f) != 2 or np.shape(f)[1] != np.shape(views)[0] or np.shape(rank) != np.shape(f):
+        raise ValueError(
+            f"f and rank must both have shape (K, C) with C = {np.shape(views)[0]} candidates, got "
+            f"f {np.shape(f)} and rank {np.shape(rank)}"
+        )
+    f, rank = jnp.asarray(f, model.mu.dtype), jnp.asarray(rank)
     n_k, n_c = f.shape
     alive = initial_alive(belief, threshold) if alive is None else jnp.asarray(alive, bool)
     big = jnp.max(rank) + 1

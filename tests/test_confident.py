@@ -710,6 +710,10 @@ def test_rollout_values_equal_enumeration_along_each_sequence(kind):
                 want = brute_rollout_value(model, kind, start, f0, alive, seq, f[i, seq])
                 np.testing.assert_allclose(got[i, c], want, atol=2e-5)
     assert got.std() > 0.05  # the futures differ
+    with pytest.raises(ValueError, match=r"f and rank must both have shape \(K, C\)"):
+        C.rollout_values(model, b, views, valid, jnp.asarray(f[:, :3]), jnp.asarray(rank[:, :3]))
+    with pytest.raises(ValueError, match="f and rank must both have shape"):
+        C.rollout_values(model, b, views, valid, jnp.asarray(f), jnp.asarray(rank[0]))
 
 
 def independent_futures(model, kind, start, f0, rng, k):
