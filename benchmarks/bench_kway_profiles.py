@@ -16,7 +16,10 @@ compares the two K-way models on the same held-out instances and trials:
 * per held-out instance, the share of its trials classified correctly after 1 and 8 random views, so that a
   change of accuracy can be traced to the instances that cause it.
 
-``--shared-noise`` fits the variant with one noise sd and instance sd for all non-target categories.
+``--rest`` adds the rest reading of the binary models (:func:`scrppl.kway.models.rest_reading`: every
+non-target category is the binary model's "absent" class), with the instance-aware filter (``rest``) and
+with naive Bayes (``rest-naive_bayes``, its one-vs-rest baseline then naive Bayes too); ``--only-rest``
+runs only these and adds them to the record. ``--shared-noise`` fits the variant with one noise sd and instance sd for all non-target categories.
 Writes (or updates) the key ``<profile>/<variant>`` of ``benchmarks/results/kway-profiles.json``. Run:
 ``python benchmarks/bench_kway_profiles.py RESULTS [--cache DIR] [--trials N] [--draws N]
 [--shared-noise]``.
@@ -49,7 +52,7 @@ def main() -> None:
         run_kway_experiment,
         summarise_kway,
     )
-    from scrppl.kway.models import kway_from_fits, stack_models, target_model
+    from scrppl.kway.models import kway_from_fits, rest_reading, stack_models, target_model
     from scrppl.kway.profiles import (
         fit_category_profiles,
         kway_heldout_lpd,
@@ -97,6 +100,16 @@ def main() -> None:
         "--skip-gaussian",
         action="store_true",
         help="only the Student-t variants (the Gaussian ones already recorded)",
+    )
+    ap.add_argument(
+        "--rest",
+        action="store_true",
+        help="also the rest reading of the binary models (scrppl.kway.models.rest_reading), both filters",
+    )
+    ap.add_argument(
+        "--only-rest",
+        action="store_true",
+        help="only the rest reading (added to the record beside the variants already there)",
     )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -172,11 +185,20 @@ def main() -> None:
         print(f"wrote {RESULTS}")
         return
     lpd = {}
-    variants = [] if args.skip_gaussian else [("profiles", new, None), ("binary", old, None)]
-    for nu in args.nu:
+    skip = args.skip_gaussian or args.only_rest
+    variants = (
+        [] if skip else [("profiles", new, None, "instance"), ("binary", old, None, "instance")]
+    )
+    for nu in [] if args.only_rest else args.nu:
         expanded, log_weight = kway_student_t_expansion(new, nu)
-        variants.append((f"profiles-t{nu:g}", expanded, log_weight))
-    for name, model, log_weight in variants:
+        variants.append((f"profiles-t{nu:g}", expanded, log_weight, "instance"))
+    if args.rest or args.only_rest:
+        rest = rest_reading(binary)
+        variants += [
+            ("rest", rest, None, "instance"),
+            ("rest-naive_bayes", rest, None, "naive_bayes"),
+        ]
+    for name, model, log_weight, kind in variants:
         t0 = time.perf_counter()
         got = kway_heldout_lpd(model, table, "dpm", log_weight=log_weight)
         lpd[name] = got
@@ -203,6 +225,7 @@ def main() -> None:
             categories=cats,
             config=PlannerConfig(objective="class", n_samples=256),
             keep_probabilities=True,
+            filter=kind,
             log_weight=log_weight,
             planned=log_weight is None or args.plan_student_t,
         )
@@ -259,7 +282,12 @@ def main() -> None:
         }
     record = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     key = f"{run.get('profile', 'unknown')}/{variant}"
-    if args.skip_gaussian:  # add the Student-t variants to the Gaussian record
+    if args.only_rest:  # add the rest reading to the record
+        record.setdefault(key, {}).update({k: out[k] for k in out if k.startswith("rest")})
+        record[key][f"rest_trials_{args.trials}_draws_{args.draws}"] = {
+            k: out[k] for k in ("trials", "draws", "seed", "machine")
+        }
+    elif args.skip_gaussian:  # add the Student-t variants to the Gaussian record
         record.setdefault(key, {}).update({k: out[k] for k in out if k.startswith("profiles-t")})
         record[key][f"student_t_trials_{args.trials}_draws_{args.draws}"] = {
             k: out[k] for k in ("trials", "draws", "seed", "machine")
@@ -268,7 +296,7 @@ def main() -> None:
         kept = {
             k: v
             for k, v in record.get(key, {}).items()
-            if "student_t" in k or k.startswith("profiles-t")
+            if "student_t" in k or k.startswith(("profiles-t", "rest"))
         }
         record[key] = {**kept, **out}
     RESULTS.write_text(json.dumps(record, indent=1) + "\n")

@@ -66,6 +66,7 @@ __all__ = [
     "target_model",
     "stack_models",
     "kway_response_model",
+    "rest_reading",
     "fit_kway",
     "kway_from_fits",
     "diagnostic_failures",
@@ -200,6 +201,61 @@ def stack_models(models: Sequence[ResponseModel], n_draws: int | None = None) ->
         jnp.stack([thin(m.sigma) for m in models]),
         jnp.stack([thin(m.tau) for m in models]),
     )
+
+
+def rest_reading(binary: ResponseModel) -> KwayModel:
+    r"""The ``T`` binary viewpoint models read K-way with every non-target category as "absent".
+
+    For target detector ``t`` the response to its own category is the binary model's present class and
+    the response to *any* other category is its absent class -- the posterior predictive of a new
+    negative from a random non-target category (:func:`scrppl.models.predictive.to_response_model`,
+    ``kappa`` folded in), the same for all ``K - 1`` of them:
+
+    .. math::
+
+        p(f_t \mid k, \theta) = p_{\text{present}}(f_t \mid \theta) \ (k = t), \qquad
+        p(f_t \mid k, \theta) = p_{\text{absent}}(f_t \mid \theta) \ (k \ne t).
+
+    The K-way filter then multiplies the ``T`` detectors' likelihood ratios present : absent, each
+    coupled to the others only through the shared pose; with an absent class that does not vary with the
+    view it picks exactly the category of the largest binary posterior odds, the one-vs-rest decision, but
+    its class probabilities are one normalised posterior rather than ``T`` separate ones. It is the
+    reference a model that knows every category must beat: it uses no category's own response
+    (:func:`kway_from_fits` uses the fitted shifts ``delta_k``, :mod:`scrppl.kway.profiles` whole
+    per-category profiles), so nothing it says about a held-out instance rests on the few fitted
+    instances of the other categories.
+
+    Parameters
+    ----------
+    binary
+        The ``T`` binary models stacked along a leading target axis: ``mu, sigma (T, N, 2, A, E, S)``,
+        ``tau (T, N, 2)``, class 0 absent and 1 present, target ``t`` the detector of category ``t``.
+
+    Returns
+    -------
+    :class:`KwayModel` with ``K = T`` categories.
+
+    Raises
+    ------
+    ValueError
+        If the arrays are not shaped as above (two classes, matching target axes).
+    """
+    mu, sigma, tau = (jnp.asarray(x) for x in binary)
+    if mu.ndim != 6 or mu.shape[2] != 2 or sigma.shape != mu.shape or tau.shape != mu.shape[:3]:
+        raise ValueError(
+            "rest_reading needs T binary models stacked along a leading axis: mu and sigma of shape "
+            f"(T, N, 2, A, E, S) and tau (T, N, 2); got mu {tuple(mu.shape)}, sigma "
+            f"{tuple(sigma.shape)}, tau {tuple(tau.shape)}"
+        )
+    own = jnp.eye(mu.shape[0], dtype=bool)  # (T, K): category k is target t's own
+
+    def read(x: jax.Array) -> jax.Array:
+        mask = own.reshape(own.shape[0], 1, own.shape[1], *([1] * (x.ndim - 3)))
+        return jnp.where(mask, x[:, :, 1:2], x[:, :, 0:1])
+
+    model = KwayModel(read(mu), read(sigma), read(tau))
+    check_kway_model(model)
+    return model
 
 
 def kway_response_model(
