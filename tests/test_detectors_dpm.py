@@ -32,6 +32,7 @@ from scrppl.detectors.dpm.latent_svm import (
 from scrppl.detectors.dpm.model import (
     Component,
     StarModel,
+    best_scores,
     filter_responses,
     pack,
     placement_features,
@@ -275,6 +276,82 @@ def test_scores_equal_weights_dot_placement_features():
         assert np.isclose(a.bias, b.bias)
 
 
+def _pyramid_max(model, pyr):
+    """The reference: the best of pyramid_scores, model by model."""
+    best = -np.inf
+    for row in pyramid_scores(model, pyr):
+        for ls in row:
+            if ls is not None and ls.score.size:
+                best = max(best, float(ls.score.max()))
+    return best
+
+
+def test_best_scores_equal_the_best_of_pyramid_scores_for_every_model_and_batch():
+    rng = np.random.default_rng(3)
+    pyr = build_pyramid(
+        skimage.data.astronaut()[:180, :150], scales=(1.0, 0.8, 0.6), canonical_size=80, min_cells=6
+    )
+    root_only = _random_model(rng, n_parts=0)
+    models = [
+        _random_model(rng),
+        _random_model(rng),
+        _random_model(rng, n_parts=3, part_size=3),  # another part layout in the same batch
+        StarModel(_random_model(rng).components, 2),  # another largest displacement
+        StarModel(root_only.components, 3),
+    ]
+    got = best_scores(models, pyr)
+    want = np.array([_pyramid_max(m, pyr) for m in models])
+    # the two computations sum in different orders: equal up to float32 rounding, and not by accident
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    assert len(set(np.round(want, 3))) == len(models)
+    # a model's score does not depend on the batch it is scored in, bit for bit
+    for i, m in enumerate(models):
+        assert best_scores([m], pyr)[0] == got[i]
+    assert best_scores(models[::-1], pyr).tolist() == got[::-1].tolist()
+    assert best_scores([], pyr).shape == (0,)
+
+
+def test_best_scores_skip_levels_a_root_does_not_fit_and_need_part_maps():
+    rng = np.random.default_rng(4)
+    model = _random_model(rng)
+    small = build_pyramid(
+        skimage.data.astronaut()[:60, :60], scales=(1.0, 0.5), canonical_size=40, min_cells=4
+    )
+    # level 2 fits no root filter, level 1 both
+    assert np.isclose(best_scores([model], small)[0], _pyramid_max(model, small), rtol=1e-5)
+    tiny = build_pyramid(
+        skimage.data.astronaut()[:60, :60], scales=(0.5,), canonical_size=40, min_cells=4
+    )
+    assert best_scores([model], tiny)[0] == _pyramid_max(model, tiny) == -np.inf
+    no_parts = build_pyramid(
+        skimage.data.astronaut()[:60, :60],
+        scales=(1.0,),
+        canonical_size=40,
+        min_cells=6,
+        parts=False,
+    )
+    with pytest.raises(ValueError, match="without part maps"):
+        best_scores([model], no_parts)
+
+
+def test_score_prepared_many_gives_each_detector_its_own_score(trained_dpm, toy_data):
+    """The response table scores every target's DPM together: the same bits as one at a time."""
+    _, (test_pos, test_neg) = toy_data
+    other = DeformablePartModel("cross", **SMALL)
+    other.model_ = StarModel(
+        tuple(c._replace(bias=c.bias - 1.0) for c in trained_dpm.model_.components),
+        trained_dpm.model_.max_displacement,
+    )
+    for t in (test_pos[0], test_neg[0]):
+        prep = trained_dpm.prepare(t.image, t.box)
+        both = DeformablePartModel.score_prepared_many([trained_dpm, other], prep)
+        assert both == [trained_dpm.score_prepared(prep), other.score_prepared(prep)]
+        assert np.isclose(both[0] - both[1], 1.0, atol=1e-5)
+    unfitted = DeformablePartModel("cross", **SMALL)
+    with pytest.raises(RuntimeError):
+        DeformablePartModel.score_prepared_many([trained_dpm, unfitted], prep)
+
+
 def test_svm_objective_gradient():
     rng = np.random.default_rng(2)
     w = [rng.normal(size=7), rng.normal(size=5)]
@@ -350,7 +427,10 @@ def test_one_negative_scan_serves_objective_and_threshold(trained_dpm, toy_data)
         for (hinge, _), pyr in zip(scans, prep.pyramids, strict=True):
             assert hinge == _mine_window(model, pyr, 0, 0)[0]
             hinges.append(hinge)
-        assert max(best for _, best in scans) == trained_dpm.score_prepared(prep)
+        # the scan's pyramid_scores and score_prepared's best_scores agree up to float32 rounding
+        assert np.isclose(
+            max(best for _, best in scans), trained_dpm.score_prepared(prep), rtol=1e-5
+        )
     pos = trained_dpm.prepare(test_pos[0].image, test_pos[0].box)
     (ox, oy), (x0, y0, x1, y1) = pos.pyramid.offset, test_pos[0].box
     positives = [TrainingWindow(pos.pyramid, (x0 - ox, y0 - oy, x1 - ox, y1 - oy))]

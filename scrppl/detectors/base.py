@@ -351,6 +351,17 @@ class Detector(abc.ABC):
     def score_prepared(self, features: Any) -> float:
         """The detector's response on a window prepared by :meth:`prepare`."""
 
+    @classmethod
+    def score_prepared_many(cls, detectors: Sequence[Detector], features: Any) -> list[float]:
+        """Each detector's :meth:`score_prepared` of one window prepared by :meth:`prepare`.
+
+        ``detectors`` are of this class and share that output (e.g. every target's detector of a family).
+        The response table scores a window this way. The default is one call per detector; a family can
+        override it to share work across the detectors, returning the same numbers as
+        :meth:`score_prepared` would.
+        """
+        return [float(d.score_prepared(features)) for d in detectors]
+
     def score(self, image: np.ndarray, box: Sequence[float]) -> float:
         """The detector's response on the proto-object window of ``box``: ``score_prepared(prepare(...))``."""
         self.require_fitted()

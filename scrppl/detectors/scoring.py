@@ -131,6 +131,14 @@ def score_chunk(
     return out, timing
 
 
+def _by_class(members: list) -> list[tuple[type, list]]:
+    """``members`` ``(fi, ti, det)`` grouped by detector class, in first-seen order."""
+    groups: dict[type, list] = {}
+    for m in members:
+        groups.setdefault(type(m[2]), []).append(m)
+    return list(groups.items())
+
+
 def _score_rows(
     dataset: MultiviewDataset,
     groups: list[tuple[Detector, list]],
@@ -150,8 +158,10 @@ def _score_rows(
             t0 = time.perf_counter()
             features = preparer.prepare(image, box)
             t1 = time.perf_counter()
-            for fi, ti, det in members:
-                out[fi, ti, a, e, s] = float(det.score_prepared(features))
+            for cls, batch in _by_class(members):
+                scores = cls.score_prepared_many([det for _, _, det in batch], features)
+                for (fi, ti, _), value in zip(batch, scores, strict=True):
+                    out[fi, ti, a, e, s] = float(value)
             timing["prepare"] += t1 - t0
             timing["score"] += time.perf_counter() - t1
 

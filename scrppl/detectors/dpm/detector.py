@@ -47,7 +47,13 @@ from scrppl.detectors.dpm.latent_svm import (
     negative_window_scan,
     train_latent_svm,
 )
-from scrppl.detectors.dpm.model import Component, StarModel, pyramid_scores, root_boxes
+from scrppl.detectors.dpm.model import (
+    Component,
+    StarModel,
+    best_scores,
+    pyramid_scores,
+    root_boxes,
+)
 
 __all__ = ["DeformablePartModel", "HogTemplate", "PreparedWindow", "azimuth_component"]
 
@@ -215,17 +221,38 @@ class DeformablePartModel(Detector):
         return self.model_ is not None
 
     def score_prepared(self, features: PreparedWindow) -> float:
-        """Best detection score over components, levels and root positions in the window."""
-        self.require_fitted()
-        prepared = self._check_prepared(features)
-        best = -np.inf
+        """Best detection score over components, levels and root positions in the window.
+
+        Computed by :func:`~scrppl.detectors.dpm.model.best_scores` (the maximum of
+        :func:`~scrppl.detectors.dpm.model.pyramid_scores` up to float32 rounding), the same bits as
+        :meth:`score_prepared_many` gives this detector in any batch.
+        """
+        return self.score_prepared_many([self], features)[0]
+
+    @classmethod
+    def score_prepared_many(
+        cls, detectors: Sequence[DeformablePartModel], features: PreparedWindow
+    ) -> list[float]:
+        """Every detector's :meth:`score_prepared` of one window, computed together.
+
+        The detectors' models score the shared pyramid in one pass of
+        :func:`~scrppl.detectors.dpm.model.best_scores` (patch matrices and distance transforms shared;
+        each model's numbers independent of the others given).
+        """
+        detectors = list(detectors)
+        if not detectors:
+            return []
+        prepared = None
+        for det in detectors:
+            det.require_fitted()
+            prepared = det._check_prepared(features)
+        assert prepared is not None
+        models = [det.model_ for det in detectors]
+        best = np.full(len(detectors), -np.inf)
         with single_threaded_blas():
-            rows = [r for pyr in prepared.pyramids for r in pyramid_scores(self.model_, pyr)]
-        for row in rows:
-            for ls in row:
-                if ls is not None and ls.score.size:
-                    best = max(best, float(ls.score.max()))
-        return _finite_best(best, self.target)
+            for pyr in prepared.pyramids:
+                best = np.maximum(best, best_scores(models, pyr))
+        return [_finite_best(float(b), det.target) for b, det in zip(best, detectors, strict=True)]
 
     def detect(
         self, image: np.ndarray, box: Sequence[float], threshold: float | None = None
@@ -383,9 +410,18 @@ class DeformablePartModel(Detector):
         self.model_ = model
         self.history_ = history
         settings = self._settings()
-        pos_scores = [
-            self.score_prepared(PreparedWindow(w.pyramid, settings, w.mirror)) for w in pos_windows
-        ]
+        # the threshold from training's own scoring path (pyramid_scores), for positives as for negatives
+        with single_threaded_blas():
+            pos_scores = [
+                _finite_best(
+                    max(
+                        _pyramid_best(model, pyr)
+                        for pyr in PreparedWindow(w.pyramid, settings, w.mirror).pyramids
+                    ),
+                    self.target,
+                )
+                for w in pos_windows
+            ]
         neg_scores = [_finite_best(max(best for _, best in scan), self.target) for scan in scans]
         self.threshold_ = _equal_error_threshold(np.asarray(pos_scores), np.asarray(neg_scores))
         return self
@@ -501,6 +537,16 @@ def _background_crops(
         if box_iou(crop_box, img.box) < 0.2:
             crops.append(arr[y0 : y0 + ch, x0 : x0 + cw])
     return crops
+
+
+def _pyramid_best(model: StarModel, pyramid: HogPyramid) -> float:
+    """The best score of ``pyramid_scores(model, pyramid)`` (``-inf`` when no root fits)."""
+    best = -np.inf
+    for row in pyramid_scores(model, pyramid):
+        for ls in row:
+            if ls is not None and ls.score.size:
+                best = max(best, float(ls.score.max()))
+    return best
 
 
 def _finite_best(best: float, target: str) -> float:

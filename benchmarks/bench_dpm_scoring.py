@@ -1,0 +1,110 @@
+"""The response table's DPM scoring: every target's model on one window, before and after batching.
+
+For a sample of a run's windows (evenly spaced over the dataset's rows) this prepares each window's HOG
+pyramid once and scores it with every target's DPM of the run two ways, in this process with BLAS
+single-threaded:
+
+* ``per_model``: the maximum of :func:`scrppl.detectors.dpm.model.pyramid_scores`, model by model (how the
+  table was scored before :func:`~scrppl.detectors.dpm.model.best_scores`; training still scores this way);
+* ``batched``: :meth:`DeformablePartModel.score_prepared_many`, what the table uses now.
+
+It records the CPU milliseconds per window of each (median of ``--repeats`` passes over the sample), the
+speed-up, the projected CPU seconds for the whole table (windows x the measured rate) and the largest
+absolute and relative difference between the two (float32 rounding: they sum in different orders).
+
+Usage::
+
+    python benchmarks/bench_dpm_scoring.py RESULTS --profile full --preset paper [--windows 200]
+
+``RESULTS`` is a run folder with ``detectors/dpm-*.npz``; the dataset is the one the profile names (as
+``scrppl reproduce`` finds it). Writes the key ``<profile>`` of ``benchmarks/results/dpm-scoring.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results" / "dpm-scoring.json"
+
+
+def main() -> None:
+    from _record import update_record
+
+    from scrppl.cli._common import dataset_root
+    from scrppl.datasets import open_dataset
+    from scrppl.detectors.base import load_detector
+    from scrppl.detectors.dpm import DeformablePartModel
+    from scrppl.detectors.dpm._blas import single_threaded_blas
+    from scrppl.detectors.dpm.model import pyramid_scores
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results", type=Path, help="a run folder with detectors/dpm-*.npz")
+    ap.add_argument("--profile", default="full")
+    ap.add_argument("--preset", default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--windows", type=int, default=200)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+
+    ns = argparse.Namespace(profile=args.profile, seed=args.seed, root=None, preset=args.preset)
+    ds = open_dataset(dataset_root(ns), split_seed=args.seed)
+    dets = [load_detector(p) for p in sorted((args.results / "detectors").glob("dpm-*.npz"))]
+    if not dets:
+        raise SystemExit(f"no DPM detectors in {args.results / 'detectors'}")
+    rows = ds.select()
+    sample = rows.iloc[np.linspace(0, len(rows) - 1, min(args.windows, len(rows))).astype(int)]
+    windows = [dets[0].prepare(ds.load_image(r), ds.bbox(r)) for _, r in sample.iterrows()]
+
+    def per_model() -> np.ndarray:
+        out = np.full((len(windows), len(dets)), -np.inf)
+        with single_threaded_blas():
+            for w, prep in enumerate(windows):
+                for d, det in enumerate(dets):
+                    for pyr in prep.pyramids:
+                        for row in pyramid_scores(det.model_, pyr):
+                            for ls in row:
+                                if ls is not None and ls.score.size:
+                                    out[w, d] = max(out[w, d], float(ls.score.max()))
+        return out
+
+    def batched() -> np.ndarray:
+        return np.array([DeformablePartModel.score_prepared_many(dets, prep) for prep in windows])
+
+    times: dict[str, list[float]] = {"per_model": [], "batched": []}
+    values = {}
+    for _ in range(args.repeats):  # alternate, so that a drift of the machine's speed hits both
+        for name, fn in (("per_model", per_model), ("batched", batched)):
+            c0 = time.process_time()
+            values[name] = fn()
+            times[name].append(time.process_time() - c0)
+    ms = {k: 1000 * statistics.median(v) / len(windows) for k, v in times.items()}
+    diff = np.abs(values["batched"] - values["per_model"])
+    n_windows = len(rows)
+    entry = {
+        "preset": args.preset,
+        "targets": len(dets),
+        "windows_sampled": len(windows),
+        "windows_in_table": n_windows,
+        "repeats": args.repeats,
+        "cpu_ms_per_window_all_targets": {k: round(v, 2) for k, v in ms.items()},
+        "speed_up": round(ms["per_model"] / ms["batched"], 2),
+        "projected_table_cpu_s": {k: round(v * n_windows / 1000, 1) for k, v in ms.items()},
+        "max_abs_difference": float(diff.max()),
+        "max_rel_difference": float((diff / np.maximum(np.abs(values["per_model"]), 1e-12)).max()),
+        "note": "CPU seconds of this process (time.process_time), BLAS single-threaded, one core; the "
+        "HOG pyramids are prepared once beforehand and not counted (the table shares them too)",
+    }
+    key = args.profile + (f"/{args.preset}" if args.preset else "")
+    run = {"profile": args.profile, "seed": args.seed, "preset": args.preset}
+    update_record(RESULTS, key, entry, run)
+    print(json.dumps(entry, indent=1))
+
+
+if __name__ == "__main__":
+    main()
