@@ -75,7 +75,16 @@ def main(argv=None) -> None:
         print(frame.round(3).to_string(index=False))
     summary = (
         frame.groupby(["kind", "class"])[
-            ["mean_square", "beyond_3", "kurtosis", "lag1", "view_corr_observed", "view_corr_model"]
+            [
+                "mean_square",
+                "beyond_3",
+                "kurtosis",
+                "lag1",
+                "view_corr_observed",
+                "view_corr_model",
+                "azimuth_corr_observed",
+                "azimuth_corr_model",
+            ]
         ]
         .mean()
         .round(4)

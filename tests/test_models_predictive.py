@@ -427,6 +427,8 @@ def test_predictive_checks_pass_the_true_model_and_catch_what_each_reading_ignor
     np.testing.assert_allclose(got["view_corr_model"], rho, rtol=1e-6)  # float32 model
     np.testing.assert_allclose(got["view_corr_observed"], rho, atol=0.03)
     assert (got["beyond_3"] < 0.006).all() and (got["instances"] == n_i // 2).all()
+    # one ring: no two views share an azimuth
+    assert got["azimuth_corr_observed"].isna().all() and (got["azimuth_pairs"] == 0).all()
     assert (got["views"] == [observed[o == k].sum() for k in (0, 1)]).all()
 
     paper = ResponseModel(
@@ -453,3 +455,49 @@ def test_predictive_checks_pass_the_true_model_and_catch_what_each_reading_ignor
     bad = data._replace(y=np.where(observed, np.nan, 0.0))
     with pytest.raises(ValueError, match="NaN"):
         predictive_checks(truth, bad)
+
+
+def test_predictive_checks_split_the_correlation_by_azimuth(rng):
+    """Two views from one azimuth on different rings against two views on one ring. Drawn from the model:
+    both correlations are tau^2 / (sigma^2 + tau^2), as the model says. Drawn with an instance x azimuth
+    effect w (shared by the rings at one azimuth) and read by the model that is right along a ring
+    (noise sd sqrt(sigma^2 + omega^2)): the ring correlation still matches, the same-azimuth one is
+    (tau^2 + omega^2) / total, above what the model implies."""
+    from scrppl.models.evaluate import predictive_checks
+
+    a, e, s_, n_i = 6, 2, 2, 3000
+    mu = rng.normal(0, 1, size=(1, 2, a, e, s_))
+    sd, tau, omega = 0.5, np.array([[0.5, 0.7]]), 0.6
+    o = np.arange(n_i) % 2
+    u = rng.normal(size=n_i) * tau[0, o]
+    observed = rng.random((n_i, a, e, s_)) > 0.1
+    noise = sd * rng.normal(size=(n_i, a, e, s_))
+    y = mu[0, o] + u[:, None, None, None] + noise
+    t2 = tau[0] ** 2
+    truth = ResponseModel(jnp.asarray(mu), jnp.full(mu.shape, sd), jnp.asarray(tau))
+    got = predictive_checks(truth, make_view_data(np.where(observed, y, 0.0), o, 0 * o, observed))
+    rho = t2 / (sd**2 + t2)
+    for col in ("view_corr_model", "azimuth_corr_model"):
+        np.testing.assert_allclose(got[col], rho, rtol=1e-5)
+    for col in ("view_corr_observed", "azimuth_corr_observed"):
+        np.testing.assert_allclose(got[col], rho, atol=0.03)
+    # pairs of rings at one azimuth: (E S choose 2) per azimuth and instance where both are observed
+    both = observed[:, :, :, :, None, None] & observed[:, :, None, None, :, :]
+    n_pairs = [
+        int((both.reshape(n_i, a, e * s_, e * s_)[o == k].sum() - observed[o == k].sum()) // 2)
+        for k in (0, 1)
+    ]
+    assert got["azimuth_pairs"].tolist() == n_pairs
+
+    w = omega * rng.normal(size=(n_i, a, 1, 1))
+    ring_right = ResponseModel(
+        jnp.asarray(mu), jnp.full(mu.shape, np.sqrt(sd**2 + omega**2)), jnp.asarray(tau)
+    )
+    side = predictive_checks(
+        ring_right, make_view_data(np.where(observed, y + w, 0.0), o, 0 * o, observed)
+    )
+    total = sd**2 + omega**2 + t2
+    np.testing.assert_allclose(side["view_corr_model"], t2 / total, rtol=1e-5)
+    np.testing.assert_allclose(side["view_corr_observed"], t2 / total, atol=0.03)
+    np.testing.assert_allclose(side["azimuth_corr_observed"], (t2 + omega**2) / total, atol=0.03)
+    assert (side["azimuth_corr_observed"] > side["azimuth_corr_model"] + 0.2).all()

@@ -24,7 +24,12 @@ Posterior predictive checks of what the filters use (:func:`predictive_checks`),
 * **correlation between views of one object**: the correlation of two views' standardised residuals
   ``(f - mu) / sqrt(sigma^2 + tau^2)`` within an instance, observed against the model's own
   ``tau^2 / sqrt((sigma_a^2 + tau^2)(sigma_b^2 + tau^2))`` (zero for the paper's model, whose
-  naive-Bayes filter treats views as independent).
+  naive-Bayes filter treats views as independent). Counted twice: for two views on one ring (different
+  azimuths, the same elevation and scale: what a trial sees) and for two views from one azimuth on
+  different rings (``azimuth_corr_*``). The model's one instance effect implies the same correlation for
+  both; an observed same-azimuth correlation above the ring's says that an instance's response depends
+  on the side it is seen from beyond the shared offset (an instance x azimuth effect), which the model
+  then reads as a larger ``tau`` and so a stronger correlation along the ring than there is.
 """
 
 from __future__ import annotations
@@ -223,7 +228,8 @@ def sequential_normal_scores(model: ResponseModel, y, observed, category) -> np.
 def _pair_correlation(x: np.ndarray, ok: np.ndarray) -> tuple[float, int]:
     """Pearson correlation of all pairs of distinct observed views within each (instance, ring).
 
-    ``x``, ``ok``: ``(I, R, A)`` values and mask. Returns the correlation over the pooled pairs (both
+    ``x``, ``ok``: ``(I, R, A)`` values and mask (with the last two axes swapped: pairs of rings within
+    each (instance, azimuth)). Returns the correlation over the pooled pairs (both
     orders, so symmetric) and the number of unordered pairs.
     """
     a_vals, b_vals = [], []
@@ -235,6 +241,8 @@ def _pair_correlation(x: np.ndarray, ok: np.ndarray) -> tuple[float, int]:
             both = ok[..., a] & ok[..., b]
             a_vals.append(x[..., a][both])
             b_vals.append(x[..., b][both])
+    if not a_vals:  # a single view per group: no pairs
+        return float("nan"), 0
     u, v = np.concatenate(a_vals), np.concatenate(b_vals)
     if u.size < 3:
         return float("nan"), 0
@@ -260,8 +268,10 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
         scores' ``mean_square`` (1 if calibrated), ``beyond_3`` (share with ``|z| > 3``; 0.0027),
         ``kurtosis`` (3) and ``lag1`` (correlation of successive scores on a ring; 0),
         ``mean_square_min`` / ``mean_square_max`` over the relative azimuths; and the correlation
-        between two views of one instance, ``view_corr_observed`` against ``view_corr_model`` (see the
-        module docstring), with ``view_pairs``.
+        between two views of one instance on a ring, ``view_corr_observed`` against ``view_corr_model``
+        (see the module docstring), with ``view_pairs``, and between two views from one azimuth on
+        different rings, ``azimuth_corr_observed`` against ``azimuth_corr_model``, with
+        ``azimuth_pairs`` (NaN and 0 on a grid of one ring).
     """
     from scipy import stats
 
@@ -322,6 +332,16 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
         both = ok[:, :, :, None] & ok[:, :, None, :]
         both &= ~np.eye(ok.shape[-1], dtype=bool)
         corr_model = float((implied[None] * both).sum() / max(both.sum(), 1))
+        # the same for two views from one azimuth on different rings: (I, A, R)
+        az_obs, az_pairs = _pair_correlation(np.swapaxes(x, 1, 2), np.swapaxes(ok, 1, 2))
+        tot_a = tot.T  # (A, R)
+        implied_a = t2_bar[k] / np.sqrt(tot_a[:, :, None] * tot_a[:, None, :])  # (A, R, R)
+        ok_a = np.swapaxes(ok, 1, 2)
+        both_a = ok_a[:, :, :, None] & ok_a[:, :, None, :]
+        both_a &= ~np.eye(ok_a.shape[-1], dtype=bool)
+        az_model = (
+            float((implied_a[None] * both_a).sum() / both_a.sum()) if both_a.any() else float("nan")
+        )
         rows.append(
             {
                 "class": name,
@@ -336,6 +356,9 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
                 "view_corr_observed": corr_obs,
                 "view_corr_model": corr_model,
                 "view_pairs": pairs,
+                "azimuth_corr_observed": az_obs,
+                "azimuth_corr_model": az_model,
+                "azimuth_pairs": az_pairs,
             }
         )
     return pd.DataFrame(rows).set_index("class")
