@@ -160,6 +160,97 @@ def test_marginal_from_sufficient_statistics_equals_the_dense_normal(rng):
         np.testing.assert_allclose(got[i], dense, rtol=2e-5)
 
 
+def _block_cov(sd, tau, omega, az):
+    """Dense covariance: noise, the instance effect, the instance x azimuth effect within azimuths."""
+    return np.diag(sd**2) + tau**2 + omega**2 * (az[:, None] == az[None, :])
+
+
+def test_marginal_with_an_instance_by_azimuth_effect_equals_the_dense_normal(rng):
+    n_inst, n_az, n_el, n_sc = 6, 5, 3, 2
+    z = rng.normal(1.0, 2.0, size=(n_inst, n_az, n_el, n_sc))
+    observed = rng.random(z.shape) > 0.25
+    o = np.array([0, 1, 0, 1, 1, 0])
+    mu = rng.normal(size=(2, n_az, n_el, n_sc))
+    sigma = rng.uniform(0.3, 2.0, size=(2, n_az))
+    tau, omega = np.array([0.5, 1.3]), np.array([0.8, 0.4])
+    offset = rng.normal(size=n_inst) * (o == 0)
+    az = np.broadcast_to(np.arange(n_az)[:, None, None], z.shape[1:])
+    stats_form = np.asarray(
+        instance_log_marginal_stats(view_stats(z, observed, o), mu, sigma, tau, offset, omega)
+    )
+    m = mu[o] + offset[:, None, None, None]
+    sd = np.broadcast_to(sigma[o][:, :, None, None], z.shape)
+    dense_form = np.asarray(instance_log_marginal(z, m, sd, tau[o], observed, omega=omega[o]))
+    for i in range(n_inst):
+        sel = observed[i]
+        cov = _block_cov(sd[i][sel], tau[o[i]], omega[o[i]], az[sel])
+        want = stats.multivariate_normal(m[i][sel], cov).logpdf(z[i][sel])
+        np.testing.assert_allclose(stats_form[i], want, rtol=2e-5)
+        np.testing.assert_allclose(dense_form[i], want, rtol=2e-5)
+    # omega = 0 is the model without the effect; a larger omega is a different density
+    zero = instance_log_marginal_stats(
+        view_stats(z, observed, o), mu, sigma, tau, offset, 0 * omega
+    )
+    plain = instance_log_marginal_stats(view_stats(z, observed, o), mu, sigma, tau, offset)
+    np.testing.assert_allclose(np.asarray(zero), np.asarray(plain), rtol=1e-6)
+    assert np.all(np.abs(np.asarray(plain) - stats_form) > 1e-3)
+    with pytest.raises(ValueError, match="azimuth axis"):
+        instance_log_marginal(
+            z[:, 0, 0, 0], m[:, 0, 0, 0], 1.0, tau[o], observed[:, 0, 0, 0], omega[o]
+        )
+
+
+def test_the_model_with_an_instance_by_azimuth_effect_has_the_block_normal_likelihood(rng):
+    """make_model(azimuth_effect=True): with every parameter fixed, the marginal model's likelihood is
+    the sum over instances of the dense normal with tau^2 everywhere and omega^2 within each azimuth
+    (standardised scale), for the stats form and the plain form alike; the site azimuth_sd is sampled."""
+    from numpyro.handlers import seed, substitute, trace
+
+    grid = ViewGrid(4, (0.0, 20.0), (1.0,))
+    table = simulate_response_table(
+        jax.random.key(3),
+        {("dpm", "c0"): random_true_model(jax.random.key(4), grid)},
+        ["c0", "c1", "c2"],
+        3,
+        grid,
+        {"fit": 3},
+    )
+    data, _ = extract_view_data(table, "dpm", "c0")
+    args = model_args(data)
+    loc, scale = float(args[4]), float(args[5])
+    z = (np.asarray(data.y) - loc) / scale
+    model = make_model(True, (), azimuth_effect=True)
+    tr = trace(seed(model, 0)).get_trace(*args)
+    assert "azimuth_sd" in tr and tr["omega"]["value"].shape == (2,)
+    params = {k: tr[k]["value"] for k in tr if tr[k]["type"] == "sample"}
+    plain = trace(substitute(model, data=params)).get_trace(*args[:7], None)
+    got = {
+        "stats": float(tr["likelihood"]["fn"].log_factor),
+        "plain": float(plain["likelihood"]["fn"].log_factor),
+    }
+    mu = np.asarray((tr["mu"]["value"] - loc) / scale)
+    sigma = np.asarray(tr["sigma"]["value"] / scale)
+    tau = np.asarray(tr["tau"]["value"] / scale)
+    omega = np.asarray(tr["omega"]["value"] / scale)
+    o = np.asarray(data.o)
+    offset = np.zeros(len(o))
+    if "category_contrast" in tr:
+        basis = sum_to_zero_basis(data.neg_onehot.shape[1])
+        offset = np.asarray(data.neg_onehot) @ (
+            basis @ np.asarray(tr["category_contrast"]["value"])
+        )
+    obs = np.asarray(data.observed)
+    az = np.broadcast_to(np.arange(obs.shape[1])[:, None, None], obs.shape[1:])
+    want = 0.0
+    for i in range(len(o)):
+        sel = obs[i]
+        sd = np.broadcast_to(sigma[o[i]][:, None, None], sel.shape)[sel]
+        cov = _block_cov(sd, tau[o[i]], omega[o[i]], az[sel])
+        want += stats.multivariate_normal((mu[o[i]] + offset[i])[sel], cov).logpdf(z[i][sel])
+    np.testing.assert_allclose(got["stats"], want, rtol=1e-4)
+    np.testing.assert_allclose(got["plain"], want, rtol=1e-4)
+
+
 def test_noise_floor_is_the_rounding_error_of_one_count():
     step = transforms.apply("anscombe", 1.0) - transforms.apply("anscombe", 0.0)
     assert transforms.resolution_sd("anscombe") == pytest.approx(step / np.sqrt(12))

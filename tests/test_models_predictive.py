@@ -84,6 +84,22 @@ def test_to_response_model_folds_the_category_variance(rng):
     np.testing.assert_allclose(thin.mu[-1], model.mu[-1])
 
 
+def test_to_response_model_reads_an_instance_by_azimuth_effect_as_ring_noise(rng):
+    """A fit with omega: for views on one ring each view has its own effect, so the noise sd of the
+    ResponseModel is sqrt(sigma^2 + omega^2); mu and tau are as without it."""
+    tree, post = _posterior(rng)
+    plain = to_response_model(tree)
+    omega = rng.uniform(0.1, 0.6, size=(2, 50, 2))
+    tree["posterior"] = (
+        tree["posterior"].to_dataset().assign(omega=(("chain", "draw", "class"), omega))
+    )
+    model = to_response_model(tree)
+    want = np.sqrt(post["sigma"].reshape(100, 2, A) ** 2 + omega.reshape(100, 2)[:, :, None] ** 2)
+    np.testing.assert_allclose(model.sigma[:, :, :, 1, 0], want, rtol=1e-6)
+    np.testing.assert_allclose(model.mu, plain.mu)
+    np.testing.assert_allclose(model.tau, plain.tau)
+
+
 def test_negatives_forecast_from_an_unseen_a_fitted_or_the_mean_category(rng):
     """negatives='unseen' / 'fitted' / 'mean': tau_0^2 plus kappa^2 times the variance, about the mean of
     K fitted category effects, of a new category's effect / of a fitted one drawn at random / of none,

@@ -68,6 +68,9 @@ DIMS = {
     "sigma_spread": ["class"],
     "log_sigma_contrast": ["class", "azimuth_contrast"],
     "instance_sd": ["class"],
+    "azimuth_sd": ["class"],
+    "omega": ["class"],
+    "v": ["instance", "azimuth"],
     "category_contrast": ["category_contrast_dim"],
     "mu": ["class", "azimuth", "elevation", "scale"],
     "sigma": ["class", "azimuth"],
@@ -76,14 +79,21 @@ DIMS = {
 }
 
 
-def _prepare(data: ViewData, meta: dict, marginal: bool, noncentered, pooled_noise=()):
+def _prepare(
+    data: ViewData,
+    meta: dict,
+    marginal: bool,
+    noncentered,
+    pooled_noise=(),
+    azimuth_effect: bool = False,
+):
     for field in ("detector", "target", "transform"):
         if field not in meta:
             raise ValueError(f"meta is missing {field!r}")
     noncentered = choose_noncentered(data) if noncentered is None else tuple(noncentered)
     loc, scale = standardisation(data)
     floor = noise_floor(data, str(meta["transform"]))
-    model = make_model(marginal, noncentered)
+    model = make_model(marginal, noncentered, azimuth_effect)
     record = {k: v for k, v in meta.items() if k not in ("instance_category", "instance_index")}
     record.update(
         kind="hierarchical",
@@ -91,6 +101,7 @@ def _prepare(data: ViewData, meta: dict, marginal: bool, noncentered, pooled_noi
         marginal=bool(marginal),
         noncentered=list(noncentered),
         pooled_noise=list(pooled_noise),
+        azimuth_effect=bool(azimuth_effect),
         loc=loc,
         scale=scale,
         noise_floor=floor,
@@ -150,6 +161,7 @@ def fit_hierarchical(
     retry_longer: int | None = RETRY_LONGER,
     choose_accept: bool = True,
     pool_noise: bool = True,
+    azimuth_effect: bool = False,
     progress: bool = True,
     warn: bool = True,
 ) -> xr.DataTree:
@@ -198,6 +210,10 @@ def fit_hierarchical(
         Give a fit that still fails after the longer chains a last attempt with one noise sd per class
         (``azimuth_noise`` of :func:`~scrppl.models.hierarchical.viewpoint_model`); recorded as
         ``pooled_noise`` in the attempt and in ``meta``.
+    azimuth_effect
+        Fit the model with an instance x azimuth effect (``azimuth_effect`` of
+        :func:`~scrppl.models.hierarchical.viewpoint_model`); its sd is ``omega (class)`` in the
+        posterior.
     progress
         Show a progress bar.
     warn
@@ -213,7 +229,7 @@ def fit_hierarchical(
         the ``noise_floor``, the parameterisation and the sampler settings) and ``diagnostics`` (JSON of
         :func:`~scrppl.models.diagnostics.diagnose`).
     """
-    model, args, record = _prepare(data, meta, marginal, noncentered)
+    model, args, record = _prepare(data, meta, marginal, noncentered, (), azimuth_effect)
     label = f"{meta['detector']}/{meta['target']}"
     if choose_accept and retry_accept is not None and config.target_accept_prob < retry_accept:
         # nearly noiseless cells: start where the first retry would go
@@ -247,10 +263,14 @@ def fit_hierarchical(
                 # one class centred and the other not: on the paper table all four such fits failed
                 # at 0.99 as well and passed fully non-centred, so both remedies go in at once
                 switched = True
-                model, args, record = _prepare(data, meta, marginal, RETRY_NONCENTERED)
+                model, args, record = _prepare(
+                    data, meta, marginal, RETRY_NONCENTERED, (), azimuth_effect
+                )
         elif not switched and set(record["noncentered"]) != set(RETRY_NONCENTERED):
             switched = True
-            model, args, record = _prepare(data, meta, marginal, RETRY_NONCENTERED)
+            model, args, record = _prepare(
+                data, meta, marginal, RETRY_NONCENTERED, (), azimuth_effect
+            )
         elif (
             retry_longer is not None
             and retry_longer > 1
@@ -262,7 +282,9 @@ def fit_hierarchical(
             )
         elif pool_noise and not record["pooled_noise"]:
             # the last resort: one noise sd per class (the noise-scale contrasts were the problem)
-            model, args, record = _prepare(data, meta, marginal, record["noncentered"], (0, 1))
+            model, args, record = _prepare(
+                data, meta, marginal, record["noncentered"], (0, 1), azimuth_effect
+            )
         else:
             break
     tree.attrs["meta"] = json.dumps(dict(json.loads(tree.attrs["meta"]), attempts=attempts))

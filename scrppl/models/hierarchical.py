@@ -137,6 +137,7 @@ FREE_PARAMETERS = (
     "instance_sd",
     "category_sd",
     "category_contrast",
+    "azimuth_sd",
 )
 
 #: Sites that ``centered=False`` reparameterises (``u`` only exists in the latent-instance model).
@@ -312,6 +313,7 @@ def viewpoint_model(
     stats=None,
     azimuth_noise=None,
     marginal: bool = True,
+    azimuth_effect: bool = False,
 ):
     """NumPyro model of one detector's responses for one target (see the module docstring).
 
@@ -341,6 +343,13 @@ def viewpoint_model(
         class 1.
     marginal
         Integrate the instance effects out in closed form (``True``) or sample them (``False``).
+    azimuth_effect
+        Add an instance x azimuth effect ``v_ia ~ Normal(0, omega_o)`` (site ``azimuth_sd``, one sd per
+        class), shared by the views of instance ``i`` from azimuth ``a`` at every elevation and scale: an
+        object's response may depend on the side it is seen from beyond its one offset ``u``
+        (:func:`scrppl.models.predictive_checks` finds this in negatives' held-out views). Integrated out
+        with ``u`` (:mod:`scrppl.models.marginal`) or sampled (site ``v``). The deterministic ``omega``
+        is its sd on the response scale.
     """
     n_inst, n_az, n_el, n_sc = observed.shape
     n_neg = neg_onehot.shape[1]
@@ -358,6 +367,10 @@ def viewpoint_model(
     numpyro.deterministic("sigma", scale * sigma)
     numpyro.deterministic("tau", scale * tau)
     numpyro.deterministic("kappa", scale * kappa)
+    omega = None
+    if azimuth_effect:
+        omega = numpyro.sample("azimuth_sd", dist.HalfNormal(1.0).expand([2]))
+        numpyro.deterministic("omega", scale * omega)
 
     # select each instance's class by arithmetic rather than by gathering with ``o``: the gather's
     # gradient is a scatter, several times slower than this on CPU (and much slower under vmap)
@@ -369,22 +382,32 @@ def viewpoint_model(
         if y is None:
             raise ValueError("the marginal model cannot generate responses; use marginal=False")
         if stats is not None:
-            ll = instance_log_marginal_stats(stats, mu, sigma, tau, offset)
+            ll = instance_log_marginal_stats(stats, mu, sigma, tau, offset, omega)
         else:
-            ll = instance_log_marginal((y - loc) / scale, m, sd, tau_i, observed)
+            omega_i = None if omega is None else omega[0] + present * (omega[1] - omega[0])
+            ll = instance_log_marginal((y - loc) / scale, m, sd, tau_i, observed, omega_i)
         numpyro.factor("likelihood", ll.sum())
     else:
         u = numpyro.sample("u", dist.Normal(0.0, tau_i))
+        shift = u[:, None, None, None]
+        if omega is not None:
+            omega_i = omega[0] + present * (omega[1] - omega[0])
+            v = numpyro.sample(
+                "v", dist.Normal(0.0, jnp.broadcast_to(omega_i[:, None], (n_inst, n_az)))
+            )
+            shift = shift + v[:, :, None, None]
         z = None if y is None else (y - loc) / scale
         with numpyro.handlers.mask(mask=observed):
-            z = numpyro.sample(
-                "z", dist.Normal(m + u[:, None, None, None], jnp.broadcast_to(sd, m.shape)), obs=z
-            )
+            z = numpyro.sample("z", dist.Normal(m + shift, jnp.broadcast_to(sd, m.shape)), obs=z)
         numpyro.deterministic("y", loc + scale * z)
 
 
 @functools.cache
-def make_model(marginal: bool = True, noncentered: tuple[str, ...] | None = None):
+def make_model(
+    marginal: bool = True,
+    noncentered: tuple[str, ...] | None = None,
+    azimuth_effect: bool = False,
+):
     """The model as a callable ``model(y, observed, o, neg_onehot, loc, scale)``.
 
     Cached, so that the compiled samplers of :mod:`scrppl.models.mcmc` are reused across fits.
@@ -397,6 +420,8 @@ def make_model(marginal: bool = True, noncentered: tuple[str, ...] | None = None
         Sites to sample non-centred (NumPyro ``LocScaleReparam(0)``), a subset of
         :data:`REPARAM_SITES`; default :data:`DEFAULT_NONCENTERED` (chosen by measurement, see the
         module docstring); ``()`` is the fully centred model.
+    azimuth_effect
+        Include the instance x azimuth effect (:func:`viewpoint_model`).
     """
     noncentered = DEFAULT_NONCENTERED if noncentered is None else tuple(noncentered)
     config = {}
@@ -417,7 +442,7 @@ def make_model(marginal: bool = True, noncentered: tuple[str, ...] | None = None
             centered = np.ones((2, 1))
             centered[classes] = 0.0
             config[site] = LocScaleReparam(centered)
-    fn = functools.partial(viewpoint_model, marginal=marginal)
+    fn = functools.partial(viewpoint_model, marginal=marginal, azimuth_effect=azimuth_effect)
     if config:
         fn = reparam(fn, config=config)
     return fn

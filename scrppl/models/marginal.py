@@ -13,6 +13,18 @@ This is exactly the likelihood of the latent-instance model with ``u`` integrate
 only the population parameters (and no funnel between ``u`` and ``tau`` can form). The same formula is
 the joint predictive density of all views of a new instance (:mod:`scrppl.models.evaluate`) -- the
 quantity the paper's naive-Bayes product (Meger et al. 2010, eq. 3) approximates by ignoring ``u``.
+
+With an instance x azimuth effect as well, ``f_j = m_j + u + v_{a(j)} + sigma_j eps_j`` with
+``v_a ~ Normal(0, omega)`` shared by the views of one instance from azimuth ``a`` (its other elevations
+and scales), the covariance gains ``omega^2`` within each azimuth's block. The same two identities, applied
+first within each block and then across them, keep it O(n): per azimuth, with ``W_a = sum w_j``,
+``R_a = sum w_j r_j`` and ``d_a = 1 + omega^2 W_a``,
+
+    log det Sigma = sum_j log sigma_j^2 + sum_a log d_a + log(1 + tau^2 sum_a W_a / d_a)
+    r^T Sigma^-1 r = sum_j w_j r_j^2 - omega^2 sum_a R_a^2 / d_a
+                     - tau^2 (sum_a R_a / d_a)^2 / (1 + tau^2 sum_a W_a / d_a)
+
+(``omega = 0`` gives the formula above).
 """
 
 from __future__ import annotations
@@ -27,7 +39,7 @@ import numpy as np
 __all__ = ["instance_log_marginal", "ViewStats", "view_stats", "instance_log_marginal_stats"]
 
 
-def instance_log_marginal(y, m, sigma, tau, observed):
+def instance_log_marginal(y, m, sigma, tau, observed, omega=None):
     """Log density of every instance's observed responses with its instance effect integrated out.
 
     Parameters
@@ -38,26 +50,53 @@ def instance_log_marginal(y, m, sigma, tau, observed):
         Instance-effect sd per instance, shape ``(I,)``.
     observed
         Boolean mask of shape ``(I, ...)``: views that enter the density.
+    omega
+        Optional instance x azimuth effect sd per instance, shape ``(I,)``: the views that share the
+        index of axis 1 (the azimuth of ``(I, A, E, S)`` arrays) share an effect of this sd (see the
+        module docstring). ``None`` or 0: none.
 
     Returns
     -------
-    Array of shape ``(I,)``: ``log Normal(y_i[observed]; m_i, diag(sigma_i^2) + tau_i^2 1 1^T)``.
+    Array of shape ``(I,)``: ``log Normal(y_i[observed]; m_i, diag(sigma_i^2) + tau_i^2 1 1^T)``, plus
+    ``omega_i^2`` within each azimuth's block.
     """
     y, m, sigma, observed = jnp.broadcast_arrays(
         jnp.asarray(y), jnp.asarray(m), jnp.asarray(sigma), jnp.asarray(observed)
     )
-    axes = tuple(range(1, y.ndim))
     var = jnp.where(observed, sigma**2, 1.0)
     w = jnp.where(observed, 1.0 / var, 0.0)
     r = jnp.where(observed, y - m, 0.0)
-    n = observed.sum(axis=axes)
-    sw = w.sum(axis=axes)
-    swr = (w * r).sum(axis=axes)
-    swr2 = (w * r * r).sum(axis=axes)
+    n_inst = y.shape[0]
+    if omega is None:  # one block per instance
+        block = (n_inst, 1, -1)
+        o2 = jnp.zeros((n_inst, 1))
+    else:
+        if y.ndim < 2:
+            raise ValueError("an instance x azimuth effect needs an azimuth axis (axis 1)")
+        block = (n_inst, y.shape[1], -1)
+        o2 = jnp.asarray(omega)[:, None] ** 2
+    n = observed.reshape(n_inst, -1).sum(axis=1)
+    sw_a = w.reshape(block).sum(axis=2)
+    swr_a = (w * r).reshape(block).sum(axis=2)
+    swr2 = (w * r * r).reshape(n_inst, -1).sum(axis=1)
+    return _nested_normal(
+        n, jnp.log(var).reshape(n_inst, -1).sum(axis=1), sw_a, swr_a, swr2, tau, o2
+    )
+
+
+def _nested_normal(n, sum_log_var, sw_a, swr_a, swr2, tau, o2):
+    """The module docstring's closed form from its sums.
+
+    Per instance ``n``, ``sum log sigma^2`` and ``sum w r^2``; per block ``W_a`` and ``R_a`` ``(I, B)``;
+    ``tau`` ``(I,)`` and ``omega^2`` ``(I, B)``.
+    """
+    d = 1.0 + o2 * sw_a
+    sw = (sw_a / d).sum(axis=1)
+    swr = (swr_a / d).sum(axis=1)
     t2 = jnp.asarray(tau) ** 2
     denom = 1.0 + t2 * sw
-    logdet = jnp.log(var).sum(axis=axes) + jnp.log(denom)
-    quad = swr2 - t2 * swr**2 / denom
+    logdet = sum_log_var + jnp.log(d).sum(axis=1) + jnp.log(denom)
+    quad = swr2 - (o2 * swr_a**2 / d).sum(axis=1) - t2 * swr**2 / denom
     return -0.5 * (n * math.log(2 * math.pi) + logdet + quad)
 
 
@@ -132,7 +171,7 @@ def view_stats(z, observed, o, dtype=None) -> ViewStats:
     return ViewStats(*(jnp.asarray(x, dtype=dtype) for x in arrays))
 
 
-def instance_log_marginal_stats(stats: ViewStats, mu, sigma, tau, offset):
+def instance_log_marginal_stats(stats: ViewStats, mu, sigma, tau, offset, omega=None):
     """:func:`instance_log_marginal` of every instance, from sufficient statistics.
 
     Same value as ``instance_log_marginal(z, mu[o] + offset, sigma[o], tau[o], observed)``, but the
@@ -153,6 +192,8 @@ def instance_log_marginal_stats(stats: ViewStats, mu, sigma, tau, offset):
         ``(2,)``: instance-effect sds.
     offset
         ``(I,)``: per-instance shift (the non-target category effect of negatives).
+    omega
+        Optional ``(2,)``: instance x azimuth effect sds (module docstring); ``None``: none.
 
     Returns
     -------
@@ -175,10 +216,12 @@ def instance_log_marginal_stats(stats: ViewStats, mu, sigma, tau, offset):
     var = (sigma[0] + present[:, None] * (sigma[1] - sigma[0])) ** 2
     t2 = (tau[0] + present * (tau[1] - tau[0])) ** 2
     w = 1.0 / var
-    sw = (n * w).sum(axis=1)
-    swr = (w * s1).sum(axis=1)
+    if omega is None:
+        o2 = jnp.zeros((n_inst, 1))
+        sw_a, swr_a = (n * w).sum(axis=1, keepdims=True), (w * s1).sum(axis=1, keepdims=True)
+    else:
+        o2 = ((omega[0] + present * (omega[1] - omega[0])) ** 2)[:, None]
+        sw_a, swr_a = n * w, w * s1
     swr2 = (w * s2).sum(axis=1)
-    denom = 1.0 + t2 * sw
-    logdet = (n * jnp.log(var)).sum(axis=1) + jnp.log(denom)
-    quad = swr2 - t2 * swr**2 / denom
-    return -0.5 * (n.sum(axis=1) * math.log(2 * math.pi) + logdet + quad)
+    sum_log_var = (n * jnp.log(var)).sum(axis=1)
+    return _nested_normal(n.sum(axis=1), sum_log_var, sw_a, swr_a, swr2, jnp.sqrt(t2), o2)

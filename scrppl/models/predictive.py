@@ -58,6 +58,11 @@ def to_response_model(
 
         ``benchmarks/bench_negative_widening.py`` compares them on held-out views.
 
+    A fit with an instance x azimuth effect (``azimuth_effect=True``, posterior ``omega``) is read for
+    views on one ring, the views a trial sees (one per azimuth, each with its own effect): its noise sd
+    becomes ``sqrt(sigma^2 + omega^2)``. Views that share an azimuth (the view sphere's other heights and
+    distances) then count as independent given ``u``, which they are not.
+
     Returns
     -------
     ``ResponseModel`` with ``mu, sigma`` of shape ``(N, 2, A, E, S)`` and ``tau`` of shape ``(N, 2)``.
@@ -81,6 +86,9 @@ def to_response_model(
     sigma = np.broadcast_to(flat("sigma")[..., None, None], mu.shape).copy()
     tau = flat("tau").copy()
     kappa = flat("kappa")
+    if "omega" in post:  # the ring's view of the instance x azimuth effect: per-view noise
+        omega = flat("omega")  # (N, 2)
+        sigma = np.sqrt(sigma**2 + omega[:, :, None, None, None] ** 2)
     factor = NEGATIVE_SPREAD.get(negatives)
     if factor is None:
         raise ValueError(f"negatives must be one of {sorted(NEGATIVE_SPREAD)}, got {negatives!r}")
