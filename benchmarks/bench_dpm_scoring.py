@@ -41,7 +41,7 @@ def main() -> None:
     from scrppl.detectors.base import load_detector
     from scrppl.detectors.dpm import DeformablePartModel
     from scrppl.detectors.dpm._blas import single_threaded_blas
-    from scrppl.detectors.dpm.model import pyramid_scores
+    from scrppl.detectors.dpm.model import pyramid_best
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=Path, help="a run folder with detectors/dpm-*.npz")
@@ -66,11 +66,7 @@ def main() -> None:
         with single_threaded_blas():
             for w, prep in enumerate(windows):
                 for d, det in enumerate(dets):
-                    for pyr in prep.pyramids:
-                        for row in pyramid_scores(det.model_, pyr):
-                            for ls in row:
-                                if ls is not None and ls.score.size:
-                                    out[w, d] = max(out[w, d], float(ls.score.max()))
+                    out[w, d] = max(pyramid_best(det.model_, pyr) for pyr in prep.pyramids)
         return out
 
     def batched() -> np.ndarray:

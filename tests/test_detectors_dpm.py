@@ -36,6 +36,7 @@ from scrppl.detectors.dpm.model import (
     filter_responses,
     pack,
     placement_features,
+    pyramid_best,
     pyramid_scores,
     unpack,
 )
@@ -276,16 +277,6 @@ def test_scores_equal_weights_dot_placement_features():
         assert np.isclose(a.bias, b.bias)
 
 
-def _pyramid_max(model, pyr):
-    """The reference: the best of pyramid_scores, model by model."""
-    best = -np.inf
-    for row in pyramid_scores(model, pyr):
-        for ls in row:
-            if ls is not None and ls.score.size:
-                best = max(best, float(ls.score.max()))
-    return best
-
-
 def test_best_scores_equal_the_best_of_pyramid_scores_for_every_model_and_batch():
     rng = np.random.default_rng(3)
     pyr = build_pyramid(
@@ -300,7 +291,7 @@ def test_best_scores_equal_the_best_of_pyramid_scores_for_every_model_and_batch(
         StarModel(root_only.components, 3),
     ]
     got = best_scores(models, pyr)
-    want = np.array([_pyramid_max(m, pyr) for m in models])
+    want = np.array([pyramid_best(m, pyr) for m in models])
     # the two computations sum in different orders: equal up to float32 rounding, and not by accident
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
     assert len(set(np.round(want, 3))) == len(models)
@@ -318,11 +309,11 @@ def test_best_scores_skip_levels_a_root_does_not_fit_and_need_part_maps():
         skimage.data.astronaut()[:60, :60], scales=(1.0, 0.5), canonical_size=40, min_cells=4
     )
     # level 2 fits no root filter, level 1 both
-    assert np.isclose(best_scores([model], small)[0], _pyramid_max(model, small), rtol=1e-5)
+    assert np.isclose(best_scores([model], small)[0], pyramid_best(model, small), rtol=1e-5)
     tiny = build_pyramid(
         skimage.data.astronaut()[:60, :60], scales=(0.5,), canonical_size=40, min_cells=4
     )
-    assert best_scores([model], tiny)[0] == _pyramid_max(model, tiny) == -np.inf
+    assert best_scores([model], tiny)[0] == pyramid_best(model, tiny) == -np.inf
     no_parts = build_pyramid(
         skimage.data.astronaut()[:60, :60],
         scales=(1.0,),

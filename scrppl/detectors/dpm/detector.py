@@ -51,6 +51,7 @@ from scrppl.detectors.dpm.model import (
     Component,
     StarModel,
     best_scores,
+    pyramid_best,
     pyramid_scores,
     root_boxes,
 )
@@ -415,7 +416,7 @@ class DeformablePartModel(Detector):
             pos_scores = [
                 _finite_best(
                     max(
-                        _pyramid_best(model, pyr)
+                        pyramid_best(model, pyr)
                         for pyr in PreparedWindow(w.pyramid, settings, w.mirror).pyramids
                     ),
                     self.target,
@@ -537,16 +538,6 @@ def _background_crops(
         if box_iou(crop_box, img.box) < 0.2:
             crops.append(arr[y0 : y0 + ch, x0 : x0 + cw])
     return crops
-
-
-def _pyramid_best(model: StarModel, pyramid: HogPyramid) -> float:
-    """The best score of ``pyramid_scores(model, pyramid)`` (``-inf`` when no root fits)."""
-    best = -np.inf
-    for row in pyramid_scores(model, pyramid):
-        for ls in row:
-            if ls is not None and ls.score.size:
-                best = max(best, float(ls.score.max()))
-    return best
 
 
 def _finite_best(best: float, target: str) -> float:

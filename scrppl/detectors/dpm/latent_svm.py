@@ -37,6 +37,7 @@ from scrppl.detectors.dpm.model import (
     placement_features,
     pyramid_scores,
     root_boxes,
+    rows_best,
     unpack,
 )
 
@@ -356,12 +357,7 @@ def negative_window_scan(model: StarModel, pyramid: HogPyramid) -> tuple[float, 
         ``score_prepared`` takes it: one pass of :func:`pyramid_scores` serves both.
     """
     rows = pyramid_scores(model, pyramid)
-    best = -np.inf
-    for row in rows:
-        for ls in row:
-            if ls is not None and ls.score.size:
-                best = max(best, float(ls.score.max()))
-    return _mine_rows(rows, 0, 0)[0], best
+    return _mine_rows(rows, 0, 0)[0], rows_best(rows)
 
 
 def initial_parts(root: np.ndarray, n_parts: int, part_size: int) -> tuple[np.ndarray, np.ndarray]:

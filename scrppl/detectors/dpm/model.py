@@ -34,6 +34,8 @@ __all__ = [
     "filter_responses",
     "level_scores",
     "pyramid_scores",
+    "pyramid_best",
+    "rows_best",
     "best_scores",
     "placement_features",
     "pack",
@@ -208,6 +210,24 @@ def pyramid_scores(
         level_scores(model, r, p, placements=placements)
         for r, p in zip(pyramid.root, parts, strict=True)
     ]
+
+
+def pyramid_best(model: StarModel, pyramid: HogPyramid) -> float:
+    """The best score of :func:`pyramid_scores` over levels, components and root positions.
+
+    ``-inf`` when no root filter fits the pyramid; :func:`rows_best` of scores already computed.
+    """
+    return rows_best(pyramid_scores(model, pyramid))
+
+
+def rows_best(rows: list[list[LevelScores | None]]) -> float:
+    """The best score in :func:`pyramid_scores` output (``-inf`` when it holds none)."""
+    best = -np.inf
+    for row in rows:
+        for ls in row:
+            if ls is not None and ls.score.size:
+                best = max(best, float(ls.score.max()))
+    return best
 
 
 def best_scores(models: Sequence[StarModel], pyramid: HogPyramid) -> np.ndarray:
