@@ -69,7 +69,7 @@ def instance_log_marginal(y, m, sigma, tau, observed, omega=None):
     n_inst = y.shape[0]
     if omega is None:  # one block per instance
         block = (n_inst, 1, -1)
-        o2 = jnp.zeros((n_inst, 1))
+        o2 = None
     else:
         if y.ndim < 2:
             raise ValueError("an instance x azimuth effect needs an azimuth axis (axis 1)")
@@ -88,15 +88,21 @@ def _nested_normal(n, sum_log_var, sw_a, swr_a, swr2, tau, o2):
     """The module docstring's closed form from its sums.
 
     Per instance ``n``, ``sum log sigma^2`` and ``sum w r^2``; per block ``W_a`` and ``R_a`` ``(I, B)``;
-    ``tau`` ``(I,)`` and ``omega^2`` ``(I, B)``.
+    ``tau`` ``(I,)`` and ``omega^2`` ``(I, B)``, or ``None`` for no such effect (then the blocks are
+    summed as they are, the one-effect formula's exact operations).
     """
-    d = 1.0 + o2 * sw_a
-    sw = (sw_a / d).sum(axis=1)
-    swr = (swr_a / d).sum(axis=1)
+    if o2 is None:
+        sw, swr, log_d, block_quad = sw_a.sum(axis=1), swr_a.sum(axis=1), 0.0, 0.0
+    else:
+        d = 1.0 + o2 * sw_a
+        sw = (sw_a / d).sum(axis=1)
+        swr = (swr_a / d).sum(axis=1)
+        log_d = jnp.log(d).sum(axis=1)
+        block_quad = (o2 * swr_a**2 / d).sum(axis=1)
     t2 = jnp.asarray(tau) ** 2
     denom = 1.0 + t2 * sw
-    logdet = sum_log_var + jnp.log(d).sum(axis=1) + jnp.log(denom)
-    quad = swr2 - (o2 * swr_a**2 / d).sum(axis=1) - t2 * swr**2 / denom
+    logdet = sum_log_var + log_d + jnp.log(denom)
+    quad = swr2 - block_quad - t2 * swr**2 / denom
     return -0.5 * (n * math.log(2 * math.pi) + logdet + quad)
 
 
@@ -214,14 +220,14 @@ def instance_log_marginal_stats(stats: ViewStats, mu, sigma, tau, offset, omega=
     s1 = stats.resid_sum - p - n * delta
     s2 = stats.resid_sq - 2.0 * (q + delta * stats.resid_sum) + r2 + 2.0 * delta * p + n * delta**2
     var = (sigma[0] + present[:, None] * (sigma[1] - sigma[0])) ** 2
-    t2 = (tau[0] + present * (tau[1] - tau[0])) ** 2
+    tau_i = tau[0] + present * (tau[1] - tau[0])
     w = 1.0 / var
     if omega is None:
-        o2 = jnp.zeros((n_inst, 1))
+        o2 = None
         sw_a, swr_a = (n * w).sum(axis=1, keepdims=True), (w * s1).sum(axis=1, keepdims=True)
     else:
         o2 = ((omega[0] + present * (omega[1] - omega[0])) ** 2)[:, None]
         sw_a, swr_a = n * w, w * s1
     swr2 = (w * s2).sum(axis=1)
     sum_log_var = (n * jnp.log(var)).sum(axis=1)
-    return _nested_normal(n.sum(axis=1), sum_log_var, sw_a, swr_a, swr2, jnp.sqrt(t2), o2)
+    return _nested_normal(n.sum(axis=1), sum_log_var, sw_a, swr_a, swr2, tau_i, o2)

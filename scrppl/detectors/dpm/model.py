@@ -235,7 +235,8 @@ def best_scores(models: Sequence[StarModel], pyramid: HogPyramid) -> np.ndarray:
 
     What the response table needs from a window: ``max`` over :func:`pyramid_scores` of each model, for
     every target's model at once (the ``T`` DPMs of a family share one pyramid). Computed another way,
-    several times faster and equal to it up to float32 rounding (a few units in the last place):
+    1.75 times as fast for the paper regime's ten models (``benchmarks/bench_dpm_scoring.py``) and equal
+    to it up to float32 rounding (a few units in the last place):
 
     * each filter response is one matrix product of the map's ``h x w``-cell patches with the filter
       (im2col), the patch matrix built once per level and filter size and shared by every model, where
