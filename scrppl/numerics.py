@@ -14,11 +14,16 @@ the environment variables they read when they load:
 variable                      value                                         read by
 ============================  ============================================  ==========================
 ``NPY_DISABLE_CPU_FEATURES``  ``X86_V4 AVX512_ICL AVX512_SPR``              NumPy, at import
-``OPENBLAS_CORETYPE``         ``Haswell``                                   OpenBLAS, at load
+``OPENBLAS_CORETYPE``         ``Haswell`` (not on AMD with AVX-512)         OpenBLAS, at load
 ``XLA_FLAGS``                 ``--xla_cpu_max_isa=AVX2`` (appended)         XLA, at JAX's first use
 ``OPENCV_CPU_DISABLE``        the AVX-512 dispatch targets                  OpenCV, at import
 ``LP_NATIVE_VECTOR_WIDTH``    ``256``                                       llvmpipe, at first render
 ============================  ============================================  ==========================
+
+One exception, by CPU: OpenBLAS's Haswell matrix-product kernel overwrites its own stack on an AMD CPU
+with AVX-512 (measured on an AMD EPYC with the locked OpenBLAS 0.3.34: a ``(64, 480) @ (480, 9)`` product
+kills the process), so there :func:`portable_env` leaves OpenBLAS to choose its kernels, and its matrix
+products round as that CPU's own code does. On such a machine the other four settings still hold.
 
 ``import scrppl`` calls it before it imports NumPy, so every ``scrppl`` command and every process it
 starts (they inherit the environment) computes the same bytes on an AVX-512 machine as on an AVX2 one. A
@@ -41,6 +46,7 @@ import sys
 
 __all__ = [
     "PORTABLE_ENV",
+    "portable_env",
     "XLA_PORTABLE_FLAG",
     "NATIVE_ENV",
     "apply_portable_settings",
@@ -57,6 +63,52 @@ PORTABLE_ENV: dict[str, str] = {
     "OPENCV_CPU_DISABLE": "AVX512-SKX",  # the AVX-512 dispatch target of the locked OpenCV (cv2.getCPUFeaturesLine())
     "LP_NATIVE_VECTOR_WIDTH": "256",
 }
+#: Kernels OpenBLAS must not be pinned to on some CPUs: see :func:`portable_env`.
+_OPENBLAS_UNSAFE = "OPENBLAS_CORETYPE"
+
+
+def _cpu_vendor_and_avx512(cpuinfo: str | None = None) -> tuple[str, bool]:
+    """The CPU's vendor id (``GenuineIntel``, ``AuthenticAMD``, or ``""``) and whether it has AVX-512F.
+
+    Read from ``/proc/cpuinfo`` (Linux), else from :func:`platform.processor` (no AVX-512 answer there).
+    """
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+                cpuinfo = f.read(65536)
+        except OSError:
+            cpuinfo = ""
+    vendor, flags = "", set()
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key == "vendor_id" and not vendor:
+            vendor = value.strip()
+        elif key == "flags" and not flags:
+            flags = set(value.split())
+        if vendor and flags:
+            break
+    if not vendor:
+        proc = platform.processor()
+        vendor = next((v for v in ("GenuineIntel", "AuthenticAMD") if v in proc), "")
+    return vendor, "avx512f" in flags
+
+
+def portable_env(cpuinfo: str | None = None) -> dict[str, str]:
+    """:data:`PORTABLE_ENV` for this machine's CPU (or the ``/proc/cpuinfo`` text given).
+
+    On an AMD CPU with AVX-512 it leaves out ``OPENBLAS_CORETYPE``: OpenBLAS's Haswell (and Zen) DGEMM
+    kernel overwrites its stack there and the process dies of a segmentation fault (measured on an AMD
+    EPYC with the locked OpenBLAS; ``tests/test_numerics.py`` runs the product that crashed). OpenBLAS then
+    picks its own kernels for that CPU; every other setting stays.
+    """
+    env = dict(PORTABLE_ENV)
+    vendor, avx512 = _cpu_vendor_and_avx512(cpuinfo)
+    if vendor == "AuthenticAMD" and avx512:
+        env.pop(_OPENBLAS_UNSAFE)
+    return env
+
+
 #: Appended to ``XLA_FLAGS`` (unless it already names a maximum ISA).
 XLA_PORTABLE_FLAG = "--xla_cpu_max_isa=AVX2"
 #: Set to 1 to let every library choose the code for this CPU.
@@ -100,7 +152,7 @@ def apply_portable_settings(environ: dict | None = None) -> dict[str, str]:
     ):
         return {}
     changed = {}
-    for name, value in PORTABLE_ENV.items():
+    for name, value in portable_env().items():
         if name not in env:
             env[name] = changed[name] = value
     flags = env.get("XLA_FLAGS", "")
@@ -128,7 +180,7 @@ def settings() -> dict:
 
         numpy_avx512 = bool(features.get("X86_V4") or features.get("AVX512_SKX"))
     portable = (
-        all(os.environ.get(k) == v for k, v in PORTABLE_ENV.items())
+        all(os.environ.get(k) == v for k, v in portable_env().items())
         and XLA_PORTABLE_FLAG in (env["XLA_FLAGS"] or "")
         and not numpy_avx512
     )
@@ -153,6 +205,4 @@ def shell_exports() -> str:
         return ""
     env = dict(os.environ)  # ``import scrppl`` has applied them already, keeping any set before
     apply_portable_settings(env)
-    return "\n".join(
-        f"export {k}={shlex.quote(env[k])}" for k in (*PORTABLE_ENV, "XLA_FLAGS")
-    )
+    return "\n".join(f"export {k}={shlex.quote(env[k])}" for k in (*portable_env(), "XLA_FLAGS"))

@@ -81,3 +81,39 @@ def test_run_settings_changed_names_what_differs(tmp_path):
     ]
     (tmp_path / "run.json").write_text("{not json")
     assert run_settings_changed(tmp_path, seed=0) == ["run.json (unreadable)"]
+
+
+INTEL_AVX512 = "vendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx avx2 fma avx512f avx512dq\n"
+AMD_AVX512 = "vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma avx512f avx512_bf16\n"
+AMD_AVX2 = "vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma\n"
+
+
+def test_openblas_is_pinned_except_on_amd_with_avx512():
+    """The Haswell DGEMM kernel kills the process on an AMD CPU with AVX-512: no pin there, the rest kept."""
+    assert numerics.portable_env(INTEL_AVX512) == numerics.PORTABLE_ENV
+    assert numerics.portable_env(AMD_AVX2) == numerics.PORTABLE_ENV
+    amd = numerics.portable_env(AMD_AVX512)
+    assert "OPENBLAS_CORETYPE" not in amd
+    assert amd == {k: v for k, v in numerics.PORTABLE_ENV.items() if k != "OPENBLAS_CORETYPE"}
+
+
+@pytest.mark.skipif(not x86, reason="the portable settings are for x86-64")
+def test_matrix_products_that_crashed_an_amd_epyc_run_under_the_portable_settings():
+    """On an AMD EPYC with AVX-512, ``OPENBLAS_CORETYPE=Haswell`` made these products die of SIGSEGV.
+
+    Run in a fresh process with ``import scrppl`` first (its settings), the shapes of the K-way stage's
+    bootstrap that crashed; each product is checked against a sum written out in NumPy.
+    """
+    code = (
+        "import scrppl, numpy as np\n"
+        "rng = np.random.default_rng(0)\n"
+        "for n in (400, 480, 800):\n"
+        "    c, f = rng.random((64, n)), rng.random((n, 9))\n"
+        "    for _ in range(20):\n"
+        "        r = c @ f\n"
+        "    assert np.allclose(r, (c[:, :, None] * f[None]).sum(1))\n"
+        "print('ok')\n"
+    )
+    env = {"PATH": "/usr/bin:/bin", "HOME": "/tmp"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", (out.returncode, out.stderr[-2000:])
