@@ -52,6 +52,14 @@ def register(subparsers) -> None:
         "--targets", default=None, help="comma-separated target categories (default: all)"
     )
     p.add_argument(
+        "--azimuth-effect",
+        choices=("off", "on", "auto"),
+        default="off",
+        help="fit the hierarchical models with an instance x azimuth effect: off (the pipeline's "
+        "model), on, or auto (only on grids with more than one ring). A fit made with the other "
+        "setting is refitted",
+    )
+    p.add_argument(
         "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"
     )
     add_scheduler_options(p)
@@ -125,6 +133,7 @@ def handler(args: argparse.Namespace) -> int:
             force=args.force,
             progress=args.progress,
             executor=ex,
+            azimuth_effect=args.azimuth_effect,
         )
     if study.heldout is not None:
         frame = study.heldout

@@ -27,7 +27,7 @@ import xarray as xr
 from tqdm.auto import tqdm
 
 from scrppl._io import CorruptFileError, atomic_path, read_json
-from scrppl.models.data import extract_view_data
+from scrppl.models.data import ViewData, extract_view_data
 from scrppl.models.diagnostics import THRESHOLDS
 from scrppl.models.evaluate import evaluate_models
 from scrppl.models.fit import fit_hierarchical
@@ -57,6 +57,8 @@ __all__ = [
     "fit_pair",
     "fit_study",
     "failed_fits",
+    "AZIMUTH_EFFECT_CHOICES",
+    "wants_azimuth_effect",
 ]
 
 #: Targets drawn in Figs. 2 and 3 when present (the paper's choice).
@@ -152,6 +154,29 @@ def _is_current(path: Path, stamp: float | None) -> bool:
     return stamp is not None and path.exists() and path.stat().st_mtime >= stamp
 
 
+#: Values of the ``azimuth_effect`` setting of :func:`fit_pair` and ``scrppl fit --azimuth-effect``.
+AZIMUTH_EFFECT_CHOICES = ("off", "on", "auto")
+
+
+def wants_azimuth_effect(setting: bool | str, data: ViewData) -> bool:
+    """Whether a fit of ``data`` gets the instance x azimuth effect under ``setting``.
+
+    ``True``/``"on"`` and ``False``/``"off"`` say so; ``"auto"`` gives it to a grid with more than one
+    ring (elevations x scales > 1), where two views of one object from one azimuth exist and the effect is
+    identified, and not to a single ring, where ``v_ia`` is one more draw of noise per view.
+    """
+    if isinstance(setting, str):
+        if setting not in AZIMUTH_EFFECT_CHOICES:
+            raise ValueError(
+                f"azimuth_effect must be one of {AZIMUTH_EFFECT_CHOICES} or a bool, got {setting!r}"
+            )
+        if setting == "auto":
+            _, n_elev, n_scale = data.grid_shape
+            return n_elev * n_scale > 1
+        return setting == "on"
+    return bool(setting)
+
+
 def fit_pair(
     key: jax.Array,
     table: xr.Dataset,
@@ -163,12 +188,14 @@ def fit_pair(
     reuse_since: float | None = None,
     progress: bool = True,
     split: str = "fit",
+    azimuth_effect: bool | str = False,
 ) -> tuple[FittedPair, dict]:
     """Fit (or load) the Gaussian and the hierarchical model of one detector x target.
 
     Both are saved under ``models_dir`` (:func:`~scrppl.models.io.model_path`). A saved fit newer than
     ``reuse_since`` is loaded instead -- the hierarchical one only if it was fitted by this
-    :data:`~scrppl.models.io.MODEL_VERSION` and passed its diagnostics.
+    :data:`~scrppl.models.io.MODEL_VERSION`, with the ``azimuth_effect`` asked for, and passed its
+    diagnostics.
 
     Parameters
     ----------
@@ -190,6 +217,10 @@ def fit_pair(
     split
         The split fitted: ``"fit"`` (the experiment's models), or ``"test"`` for the oracle models of
         :func:`scrppl.sim.decomposition.fit_oracle` (fitted on the held-out instances themselves).
+    azimuth_effect
+        Fit the hierarchical model with an instance x azimuth effect (``fit_hierarchical(...,
+        azimuth_effect=True)``): ``True``, ``False``, or ``"auto"`` (:func:`wants_azimuth_effect`: only
+        where the grid has more than one ring, the one place the effect can be told from the noise).
 
     Returns
     -------
@@ -205,14 +236,22 @@ def fit_pair(
     if not _is_current(gpath, reuse_since):
         g, n_obs = fit_gaussian(data)
         save_gaussian(gpath, g, n_obs, meta)
+    with_effect = wants_azimuth_effect(azimuth_effect, data)
     tree = load_posterior(hpath) if _is_current(hpath, reuse_since) else None
     if tree is not None and not is_current_version(tree):
         tree = None  # fitted by another version of the model
+    if (
+        tree is not None
+        and bool(json.loads(tree.attrs["meta"]).get("azimuth_effect")) != with_effect
+    ):
+        tree = None  # fitted with (without) the instance x azimuth effect, asked for without (with)
     if tree is not None and not json.loads(tree.attrs.get("diagnostics", "{}")).get("ok", False):
         tree = None  # failed its diagnostics: refit (a changed retry ladder may pass it now)
     if tree is None:
         # diagnostics are reported by the caller (fit_study collects them), hence warn=False
-        tree = fit_hierarchical(key, data, meta, config, progress=progress, warn=False)
+        tree = fit_hierarchical(
+            key, data, meta, config, progress=progress, warn=False, azimuth_effect=with_effect
+        )
         save_posterior(hpath, tree)
     report = json.loads(tree.attrs["diagnostics"])
     fit_meta = json.loads(tree.attrs["meta"])
@@ -231,6 +270,7 @@ def _fit_task(
     models_dir: Path,
     config: SamplerConfig,
     stamp: float | None,
+    azimuth_effect: bool | str = False,
 ) -> tuple[FittedPair, dict]:
     """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` with ``fold_in(key, j)``.
 
@@ -241,7 +281,7 @@ def _fit_task(
     key = jnp.asarray(raw_key) if impl is None else jax.random.wrap_key_data(raw_key, impl=impl)
     return fit_pair(
         jax.random.fold_in(key, j), table, models_dir, det, tgt, config,
-        reuse_since=stamp, progress=False,
+        reuse_since=stamp, progress=False, azimuth_effect=azimuth_effect,
     )  # fmt: skip
 
 
@@ -267,6 +307,7 @@ def fit_study(
     force: bool = False,
     progress: bool = True,
     executor: Executor | None = None,
+    azimuth_effect: bool | str = False,
 ) -> FitStudy:
     """Fit both viewpoint models of every detector x target, check them and score them held out.
 
@@ -295,6 +336,10 @@ def fit_study(
         A Dask executor (:func:`scrppl.parallel.executor`): fit the pairs on a cluster, one task per
         detector x target, with the same keys and so the same draws; each task saves its fits (the
         workers must see ``models_dir``), so a rerun reuses the pairs already fitted. ``None`` fits here.
+    azimuth_effect
+        The instance x azimuth effect of every hierarchical fit (:func:`fit_pair`): ``False`` (the
+        pipeline's model), ``True``, or ``"auto"``. The held-out scores (``heldout.csv``) read a fit with
+        the effect as the filters do, its ``v_ia`` as noise of each view.
 
     Returns
     -------
@@ -324,7 +369,7 @@ def fit_study(
         )
         done = executor.map(
             _fit_task, list(enumerate(jobs)), raw, impl, table, models_dir, config, stamp,
-            desc="scrppl fit", progress=progress,
+            azimuth_effect, desc="scrppl fit", progress=progress,
         )  # fmt: skip
     else:
         done = (
@@ -337,6 +382,7 @@ def fit_study(
                 config,
                 reuse_since=stamp,
                 progress=progress,
+                azimuth_effect=azimuth_effect,
             )
             for job, (det, tgt) in enumerate(tqdm(jobs, desc="scrppl fit", disable=not progress))
         )
