@@ -57,7 +57,7 @@ def register(subparsers) -> None:
         default="off",
         help="fit the hierarchical models with an instance x azimuth effect: off (the pipeline's "
         "model), on, or auto (only on grids with more than one ring). A fit made with the other "
-        "setting is refitted",
+        "setting is refitted (a later scrppl reproduce of the folder keeps the fits it finds)",
     )
     p.add_argument(
         "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"
