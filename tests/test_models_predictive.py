@@ -23,7 +23,7 @@ from scrppl.models.io import (
     save_gaussian,
     save_posterior,
 )
-from scrppl.models.predictive import to_response_model
+from scrppl.models.predictive import azimuth_sd, to_response_model
 from scrppl.models.response import ResponseModel, log_prob, predictive_moments, sample
 
 A, E, S = 8, 2, 1
@@ -303,6 +303,66 @@ def test_heldout_scores_mix_posterior_draws_by_their_densities(rng):
         sd = np.sqrt(sigma[:, o][:, m] ** 2 + tau[:, o, None] ** 2)
         single = logsumexp(stats.norm.logpdf(y[i][m], mu[:, o][:, m], sd), axis=0) - np.log(n)
         np.testing.assert_allclose(sc["lpd_single"][i], single.mean(), rtol=1e-4)
+
+
+def test_heldout_scores_read_an_azimuth_effect_as_a_shared_block(rng):
+    """With ``omega`` (folded into sigma by to_response_model), the joint density of an instance's views is
+    the dense normal with ``tau^2`` everywhere plus ``omega^2`` between views of one azimuth, computed here
+    by scipy from the unfolded noise; without it the same model reads omega as independent noise (lower
+    density here, where the views of one azimuth share the effect). Single-view scores do not change."""
+    n = 3
+    mu = rng.normal(size=(n, 2, A, E, S))
+    base = rng.uniform(0.3, 0.8, size=(n, 2, A, E, S))
+    tau = rng.uniform(0.2, 0.6, size=(n, 2))
+    omega = rng.uniform(0.4, 0.9, size=(n, 2))
+    folded = np.sqrt(base**2 + omega[:, :, None, None, None] ** 2)
+    model = ResponseModel(jnp.asarray(mu), jnp.asarray(folded), jnp.asarray(tau))
+    o = np.array([1, 0, 1, 0])
+    # responses with a real instance x azimuth effect: one draw of v per (instance, azimuth)
+    v = rng.normal(size=(len(o), A, 1, 1)) * omega[0, o][:, None, None, None]
+    y = mu[0, o] + rng.normal(size=(len(o), 1, 1, 1)) * tau[0, o][:, None, None, None] + v
+    y = y + rng.normal(size=y.shape) * base[0, o]
+    obs = rng.random(y.shape) > 0.15
+    data = make_view_data(np.where(obs, y, np.nan), o, observed=obs)
+    sc = heldout_scores(model, data, omega=omega)
+    plain = heldout_scores(model, data)
+    same_azimuth = np.equal.outer(np.arange(A), np.arange(A))[:, None, :, None]
+    same_azimuth = np.broadcast_to(same_azimuth, (A, E, A, E)).reshape(A * E, A * E)
+    for i, c in enumerate(o):
+        m = obs[i].reshape(-1)
+        per_draw = []
+        for k in range(n):
+            cov = np.diag(base[k, c].reshape(-1) ** 2) + tau[k, c] ** 2
+            cov = cov + omega[k, c] ** 2 * same_azimuth
+            per_draw.append(
+                stats.multivariate_normal(mu[k, c].reshape(-1)[m], cov[np.ix_(m, m)]).logpdf(
+                    y[i].reshape(-1)[m]
+                )
+            )
+        dense = logsumexp(per_draw) - np.log(n)
+        np.testing.assert_allclose(sc["lpd_joint"][i] * m.sum(), dense, rtol=1e-4)
+    assert sc["lpd_joint"].mean() > plain["lpd_joint"].mean()
+    for name in ("lpd_single", "cover50", "cover90"):
+        np.testing.assert_allclose(sc[name], plain[name], rtol=1e-6)
+    with pytest.raises(ValueError, match="omega has shape"):
+        heldout_scores(model, data, omega=omega[:, :1])
+
+
+def test_azimuth_sd_keeps_the_draws_of_to_response_model(rng):
+    tree, _ = _posterior(rng)
+    assert azimuth_sd(tree) is None
+    omega = rng.uniform(0.1, 0.6, size=(2, 50, 2))
+    tree["posterior"] = (
+        tree["posterior"].to_dataset().assign(omega=(("chain", "draw", "class"), omega))
+    )
+    full, thin = azimuth_sd(tree), azimuth_sd(tree, n_draws=10)
+    np.testing.assert_allclose(full, omega.reshape(100, 2))
+    # the thinned draws are the response model's: its folded sigma at those draws
+    model = to_response_model(tree, n_draws=10)
+    sigma = np.asarray(tree["posterior"]["sigma"].values).reshape(100, 2, A)
+    idx = [np.flatnonzero(np.isclose(full[:, 0], w))[0] for w in thin[:, 0]]
+    want = np.sqrt(sigma[idx] ** 2 + thin[:, :, None] ** 2)
+    np.testing.assert_allclose(model.sigma[:, :, :, 0, 0], want, rtol=1e-6)
 
 
 def test_heldout_scores_with_weighted_draws_equal_repeated_draws(rng):

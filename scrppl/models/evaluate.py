@@ -51,19 +51,33 @@ __all__ = ["heldout_scores", "evaluate_models", "sequential_normal_scores", "pre
 
 
 @jax.jit
-def _joint_and_cdf(mu, sigma, tau, y, observed, o, weight):
-    """Per draw: joint log density of every instance; the draws' CDF values summed, each times its weight."""
+def _joint_and_cdf(mu, sigma, tau, y, observed, o, weight, omega=None):
+    """Per draw: joint log density of every instance; the draws' CDF values summed, each times its weight.
+
+    ``omega`` ``(N, O)``: the instance x azimuth effect sd folded into ``sigma`` (the filters' reading);
+    the joint density then takes it out of each view's noise and puts it back as a shared effect of the
+    views of one azimuth (:func:`~scrppl.models.marginal.instance_log_marginal`'s ``omega``). A single
+    view's CDF is the same either way.
+    """
+    draws = (mu, sigma, tau, weight) if omega is None else (mu, sigma, tau, weight, omega)
 
     def one(cdf_sum, draw):
         m, sd, t, w = draw[0][o], draw[1][o], draw[2][o], draw[3]
-        joint = instance_log_marginal(y, m, sd, t, observed)
+        if omega is None:
+            joint = instance_log_marginal(y, m, sd, t, observed)
+        else:
+            om = draw[4][o]  # (I,)
+            base = jnp.sqrt(jnp.maximum(sd**2 - om[:, None, None, None] ** 2, 0.0))
+            joint = instance_log_marginal(y, m, base, t, observed, omega=om)
         z = (y - m) / jnp.sqrt(sd**2 + t[:, None, None, None] ** 2)
         return cdf_sum + w * norm.cdf(z), joint
 
-    return jax.lax.scan(one, jnp.zeros(y.shape, mu.dtype), (mu, sigma, tau, weight))[::-1]
+    return jax.lax.scan(one, jnp.zeros(y.shape, mu.dtype), draws)[::-1]
 
 
-def heldout_scores(model: ResponseModel, data: ViewData, log_weight=None) -> dict[str, np.ndarray]:
+def heldout_scores(
+    model: ResponseModel, data: ViewData, log_weight=None, omega=None
+) -> dict[str, np.ndarray]:
     """Per-instance held-out scores of a viewpoint model.
 
     Parameters
@@ -75,6 +89,11 @@ def heldout_scores(model: ResponseModel, data: ViewData, log_weight=None) -> dic
     log_weight
         Optional ``(N,)`` log weights of the draws (summing to one), e.g. the Student-t instance effect
         of :func:`scrppl.models.tails.student_t_expansion`; default equal weights ``1 / N``.
+    omega
+        Optional ``(N, O)`` instance x azimuth effect sd of each draw, already folded into ``model.sigma``
+        (:func:`scrppl.models.predictive.to_response_model`; :func:`~scrppl.models.predictive.azimuth_sd`
+        gives it): the joint density then reads it as the model does, one effect shared by the views
+        of an instance from one azimuth, instead of noise of each view. ``None``: no such effect.
 
     Returns
     -------
@@ -107,8 +126,14 @@ def heldout_scores(model: ResponseModel, data: ViewData, log_weight=None) -> dic
         weight = jnp.exp(log_weight).astype(model.mu.dtype)
     lpd_single = np.where(obs, np.asarray(single), 0.0).reshape(len(n_views), -1).sum(1) / n_views
 
+    if omega is not None:
+        omega = jnp.asarray(omega, model.sigma.dtype)
+        if omega.shape != model.tau.shape:
+            raise ValueError(
+                f"omega has shape {omega.shape}, the model's draws x classes are {model.tau.shape}"
+            )
     joint_draws, cdf = _joint_and_cdf(
-        model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o, weight
+        model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o, weight, omega
     )
     if log_weight is None:
         joint = logsumexp(joint_draws, axis=0) - math.log(n_draw)
@@ -124,7 +149,10 @@ def heldout_scores(model: ResponseModel, data: ViewData, log_weight=None) -> dic
 
 
 def evaluate_models(
-    models: dict[str, ResponseModel], data: ViewData, labels: dict | None = None
+    models: dict[str, ResponseModel],
+    data: ViewData,
+    labels: dict | None = None,
+    omegas: dict | None = None,
 ) -> pd.DataFrame:
     """Compare viewpoint models on held-out instances.
 
@@ -136,6 +164,9 @@ def evaluate_models(
         Held-out responses on the models' transformed scale.
     labels
         Extra columns added to every row (e.g. ``{"detector": "dpm", "target": "car"}``).
+    omegas
+        ``{kind: (N, O) array}`` for the kinds fitted with an instance x azimuth effect
+        (:func:`heldout_scores`' ``omega``); other kinds have none.
 
     Returns
     -------
@@ -146,7 +177,7 @@ def evaluate_models(
     rows = []
     o = np.asarray(data.o)
     for kind, model in models.items():
-        sc = heldout_scores(model, data)
+        sc = heldout_scores(model, data, omega=(omegas or {}).get(kind))
         for cls_name, sel in (
             ("all", np.ones_like(o, bool)),
             (CLASS_NAMES[0], o == 0),

@@ -24,7 +24,7 @@ import xarray as xr
 
 from scrppl.models.response import ResponseModel
 
-__all__ = ["to_response_model"]
+__all__ = ["to_response_model", "azimuth_sd"]
 
 
 #: What :func:`to_response_model` adds to ``tau_0^2``, in units of ``kappa^2``, for ``K`` categories.
@@ -98,3 +98,21 @@ def to_response_model(
         idx = np.linspace(0, mu.shape[0] - 1, int(n_draws)).round().astype(int)
         mu, sigma, tau = mu[idx], sigma[idx], tau[idx]
     return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
+
+
+def azimuth_sd(posterior: xr.DataTree, n_draws: int | None = None) -> np.ndarray | None:
+    """The instance x azimuth effect sd ``omega`` ``(N, 2)`` of the draws :func:`to_response_model` keeps.
+
+    ``None`` for a fit without the effect. With ``n_draws`` the same evenly spaced draws as
+    :func:`to_response_model`'s, so that ``omega[n]`` belongs to the response model's draw ``n`` (for
+    :func:`scrppl.models.evaluate.heldout_scores`).
+    """
+    post = posterior["posterior"].to_dataset()
+    if "omega" not in post:
+        return None
+    omega = np.asarray(post["omega"].values, dtype=np.float64)
+    omega = omega.reshape((-1,) + omega.shape[2:])
+    if n_draws is not None and n_draws < omega.shape[0]:
+        idx = np.linspace(0, omega.shape[0] - 1, int(n_draws)).round().astype(int)
+        omega = omega[idx]
+    return omega

@@ -41,7 +41,7 @@ from scrppl.models.io import (
     save_posterior,
 )
 from scrppl.models.mcmc import SamplerConfig
-from scrppl.models.predictive import to_response_model
+from scrppl.models.predictive import azimuth_sd, to_response_model
 from scrppl.models.response import ResponseModel
 from scrppl.responses import load_response_table
 
@@ -338,8 +338,8 @@ def fit_study(
         workers must see ``models_dir``), so a rerun reuses the pairs already fitted. ``None`` fits here.
     azimuth_effect
         The instance x azimuth effect of every hierarchical fit (:func:`fit_pair`): ``False`` (the
-        pipeline's model), ``True``, or ``"auto"``. The held-out scores (``heldout.csv``) read a fit with
-        the effect as the filters do, its ``v_ia`` as noise of each view.
+        pipeline's model), ``True``, or ``"auto"``. The held-out joint density (``heldout.csv``) of a fit
+        with the effect shares ``v_ia`` among the views of an instance from one azimuth, as the model does.
 
     Returns
     -------
@@ -392,7 +392,15 @@ def fit_study(
         if has_test:
             test, _ = extract_view_data(table, det, tgt, split="test")
             models = {"gaussian": pair.gaussian, "hierarchical": pair.hierarchical}
-            heldout.append(evaluate_models(models, test, {"detector": det, "target": tgt}))
+            omega = azimuth_sd(pair.posterior)  # the draws to_response_model kept (all of them)
+            heldout.append(
+                evaluate_models(
+                    models,
+                    test,
+                    {"detector": det, "target": tgt},
+                    None if omega is None else {"hierarchical": omega},
+                )
+            )
     with atomic_path(diag_path) as tmp:
         tmp.write_text(json.dumps({"thresholds": THRESHOLDS, **diagnostics}, indent=1))
     frame = None
