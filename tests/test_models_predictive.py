@@ -577,3 +577,12 @@ def test_predictive_checks_split_the_correlation_by_azimuth(rng):
     np.testing.assert_allclose(side["view_corr_observed"], t2 / total, atol=0.03)
     np.testing.assert_allclose(side["azimuth_corr_observed"], (t2 + omega**2) / total, atol=0.03)
     assert (side["azimuth_corr_observed"] > side["azimuth_corr_model"] + 0.2).all()
+    # told the omega it folded in, the model implies the same-azimuth correlation it sees
+    told = predictive_checks(
+        ring_right,
+        make_view_data(np.where(observed, y + w, 0.0), o, 0 * o, observed),
+        omega=np.full((1, 2), omega),
+    )
+    np.testing.assert_allclose(told["azimuth_corr_model"], (t2 + omega**2) / total, rtol=1e-5)
+    np.testing.assert_allclose(told["azimuth_corr_observed"], told["azimuth_corr_model"], atol=0.03)
+    np.testing.assert_allclose(told["view_corr_model"], side["view_corr_model"])

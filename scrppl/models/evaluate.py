@@ -280,7 +280,7 @@ def _pair_correlation(x: np.ndarray, ok: np.ndarray) -> tuple[float, int]:
     return float(np.corrcoef(u, v)[0, 1]), int(u.size // 2)
 
 
-def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
+def predictive_checks(model: ResponseModel, data: ViewData, omega=None) -> pd.DataFrame:
     """Posterior predictive checks of a binary response model on held-out views, per class.
 
     Parameters
@@ -291,6 +291,10 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
     data
         Held-out views on the model's scale (:func:`scrppl.models.extract_view_data`, ``split="test"``,
         with the model's transform).
+    omega
+        Optional ``(N, 2)`` instance x azimuth effect sd of each draw, folded into ``model.sigma``
+        (:func:`scrppl.models.predictive.azimuth_sd`): two views from one azimuth then share it, and the
+        model's same-azimuth correlation is ``(tau^2 + omega^2) / total``. ``None``: no such effect.
 
     Returns
     -------
@@ -325,6 +329,15 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
     mu, sd, tau = (np.asarray(v, np.float64) for v in (model.mu, model.sigma, model.tau))
     m_bar, var_bar = mu.mean(0), (sd**2).mean(0)  # (O, A, E, S): posterior means
     t2_bar = (tau**2).mean(0)  # (O,)
+    if omega is None:
+        o2_bar = np.zeros_like(t2_bar)
+    else:
+        omega = np.asarray(omega, np.float64)
+        if omega.shape != tau.shape:
+            raise ValueError(
+                f"omega has shape {omega.shape}, the model's draws x classes are {tau.shape}"
+            )
+        o2_bar = (omega**2).mean(0)  # (O,): shared by the views of one azimuth
     rows = []
     for k, name in enumerate(CLASS_NAMES):
         sel = o == k
@@ -366,7 +379,7 @@ def predictive_checks(model: ResponseModel, data: ViewData) -> pd.DataFrame:
         # the same for two views from one azimuth on different rings: (I, A, R)
         az_obs, az_pairs = _pair_correlation(np.swapaxes(x, 1, 2), np.swapaxes(ok, 1, 2))
         tot_a = tot.T  # (A, R)
-        implied_a = t2_bar[k] / np.sqrt(tot_a[:, :, None] * tot_a[:, None, :])  # (A, R, R)
+        implied_a = (t2_bar[k] + o2_bar[k]) / np.sqrt(tot_a[:, :, None] * tot_a[:, None, :])
         ok_a = np.swapaxes(ok, 1, 2)
         both_a = ok_a[:, :, :, None] & ok_a[:, :, None, :]
         both_a &= ~np.eye(ok_a.shape[-1], dtype=bool)
