@@ -504,6 +504,26 @@ def test_kway_response_model_reads_the_category_shifts(rng):
         kway_response_model(tree, ["car", "bicycle", "shoe"])
 
 
+def test_kway_response_model_reads_an_azimuth_effect_as_ring_noise(rng):
+    """With ``omega`` each category's noise is sqrt(sigma^2 + omega^2) of its class (the binary reading);
+    means and instance sds are unchanged."""
+    cats = ["car", "bicycle", "shoe", "mouse"]
+    tree = fake_posterior(rng, "shoe", ["bicycle", "car", "mouse"])
+    plain = kway_response_model(tree, cats)
+    omega = rng.uniform(0.2, 0.7, size=(2, 5, 2))
+    post = tree["posterior"].to_dataset().assign(omega=(("chain", "draw", "class"), omega))
+    tree["posterior"] = post
+    model = kway_response_model(tree, cats)
+    sig = post["sigma"].values.reshape(10, 2, 4)
+    om = omega.reshape(10, 2)
+    for k, cat in enumerate(cats):
+        o = int(cat == "shoe")
+        want = np.sqrt(sig[:, o] ** 2 + om[:, o, None] ** 2)
+        np.testing.assert_allclose(np.asarray(model.sigma)[:, k, :, 0, 0], want, rtol=1e-6)
+    np.testing.assert_allclose(model.mu, plain.mu)
+    np.testing.assert_allclose(model.tau, plain.tau)
+
+
 def test_save_load_round_trip(rng, tmp_path):
     model, _ = random_kway(rng, t=3, k=3)
     info = {

@@ -265,7 +265,9 @@ def kway_response_model(
 
     Class ``k`` is ``categories[k]``: the target's own category gets the present class's ``mu, sigma,
     tau``; every other category ``c`` the absent class's, shifted by its fitted category effect
-    ``delta_c`` (response scale; see the module docstring).
+    ``delta_c`` (response scale; see the module docstring). A fit with an instance x azimuth effect
+    (``omega``) is read for views on one ring, as :func:`scrppl.models.predictive.to_response_model`
+    reads it: noise sd ``sqrt(sigma^2 + omega^2)`` of each class.
 
     Parameters
     ----------
@@ -303,6 +305,8 @@ def kway_response_model(
         return x.reshape((-1,) + x.shape[2:])
 
     mu2, sigma2, tau2 = flat("mu"), flat("sigma"), flat("tau")  # (N,2,A,E,S), (N,2,A), (N,2)
+    if "omega" in post:  # an instance x azimuth effect, read for a ring as the binary model does
+        sigma2 = np.sqrt(sigma2**2 + flat("omega")[:, :, None] ** 2)
     n = mu2.shape[0]
     delta = np.zeros((n, len(negs)))
     if len(negs) > 1:
