@@ -155,10 +155,13 @@ def _thin_posterior(tree, n_draws: int):
     """The fit with ``n_draws`` evenly spaced draws (one chain) of the predictive's variables."""
     import xarray as xr
 
+    from scrppl.models.predictive import draw_index
+
     post = tree["posterior"].to_dataset()
     names = [v for v in ("mu", "sigma", "tau", "kappa", "category_contrast") if v in post]
     n_total = post.sizes["chain"] * post.sizes["draw"]
-    idx = np.linspace(0, n_total - 1, int(n_draws)).round().astype(int)
+    idx = draw_index(n_total, n_draws)
+    idx = np.arange(n_total) if idx is None else idx
     data = {}
     for name in names:
         var = post[name]

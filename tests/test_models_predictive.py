@@ -23,7 +23,7 @@ from scrppl.models.io import (
     save_gaussian,
     save_posterior,
 )
-from scrppl.models.predictive import azimuth_sd, to_response_model
+from scrppl.models.predictive import azimuth_sd, draw_index, to_response_model
 from scrppl.models.response import ResponseModel, log_prob, predictive_moments, sample
 
 A, E, S = 8, 2, 1
@@ -346,6 +346,24 @@ def test_heldout_scores_read_an_azimuth_effect_as_a_shared_block(rng):
         np.testing.assert_allclose(sc[name], plain[name], rtol=1e-6)
     with pytest.raises(ValueError, match="omega has shape"):
         heldout_scores(model, data, omega=omega[:, :1])
+    # evaluate_models hands each kind its own omega (none to the others)
+    frame = evaluate_models({"a": model, "b": model}, data, omegas={"a": omega}).set_index(
+        ["kind", "class"]
+    )
+    np.testing.assert_allclose(
+        frame.loc[("a", "all"), "lpd_joint"], sc["lpd_joint"].mean(), rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        frame.loc[("b", "all"), "lpd_joint"], plain["lpd_joint"].mean(), rtol=1e-6
+    )
+
+
+def test_draw_index_spreads_the_kept_draws_and_keeps_all_when_asked_for_as_many():
+    idx = draw_index(100, 10)
+    assert len(idx) == 10 and idx[0] == 0 and idx[-1] == 99 and (np.diff(idx) > 0).all()
+    assert (
+        draw_index(100, None) is None and draw_index(100, 100) is None and draw_index(5, 8) is None
+    )
 
 
 def test_azimuth_sd_keeps_the_draws_of_to_response_model(rng):
@@ -586,3 +604,5 @@ def test_predictive_checks_split_the_correlation_by_azimuth(rng):
     np.testing.assert_allclose(told["azimuth_corr_model"], (t2 + omega**2) / total, rtol=1e-5)
     np.testing.assert_allclose(told["azimuth_corr_observed"], told["azimuth_corr_model"], atol=0.03)
     np.testing.assert_allclose(told["view_corr_model"], side["view_corr_model"])
+    with pytest.raises(ValueError, match="omega has shape"):
+        predictive_checks(ring_right, make_view_data(y, o, 0 * o), omega=np.full((2, 2), omega))

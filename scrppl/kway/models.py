@@ -281,6 +281,7 @@ def kway_response_model(
         Keep this many draws, evenly spaced over the pooled chains (default: all).
     """
     from scrppl.models.hierarchical import sum_to_zero_basis
+    from scrppl.models.predictive import draw_index
 
     if "posterior" not in posterior.children:
         raise ValueError("not a fitted posterior: the DataTree has no 'posterior' group")
@@ -323,8 +324,8 @@ def kway_response_model(
         mu[:, k] = mu2[:, o] + shift
         sigma[:, k] = sigma2[:, o][:, :, None, None]
         tau[:, k] = tau2[:, o]
-    if n_draws is not None and n_draws < n:
-        idx = np.linspace(0, n - 1, int(n_draws)).round().astype(int)
+    idx = draw_index(n, n_draws)
+    if idx is not None:
         mu, sigma, tau = mu[idx], sigma[idx], tau[idx]
     return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
 

@@ -109,6 +109,7 @@ from scrppl.models.hierarchical import (
 )
 from scrppl.models.marginal import instance_log_marginal
 from scrppl.models.mcmc import DEFAULT_SAMPLER, SamplerConfig, run_nuts
+from scrppl.models.predictive import draw_index
 from scrppl.models.response import ResponseModel
 
 __all__ = [
@@ -523,8 +524,8 @@ def profile_response_model(
 
     mu, sigma, tau = flat("mu"), flat("sigma"), flat("tau")
     sigma = np.broadcast_to(sigma[..., None, None], mu.shape).copy()
-    if n_draws is not None and n_draws < mu.shape[0]:
-        idx = np.linspace(0, mu.shape[0] - 1, int(n_draws)).round().astype(int)
+    idx = draw_index(mu.shape[0], n_draws)
+    if idx is not None:
         mu, sigma, tau = mu[idx], sigma[idx], tau[idx]
     return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
 

@@ -24,7 +24,7 @@ import xarray as xr
 
 from scrppl.models.response import ResponseModel
 
-__all__ = ["to_response_model", "azimuth_sd"]
+__all__ = ["to_response_model", "azimuth_sd", "draw_index"]
 
 
 #: What :func:`to_response_model` adds to ``tau_0^2``, in units of ``kappa^2``, for ``K`` categories.
@@ -33,6 +33,17 @@ NEGATIVE_SPREAD = {
     "fitted": lambda k: 1.0 - 1.0 / k,
     "mean": lambda k: 0.0,
 }
+
+
+def draw_index(n_total: int, n_draws: int | None) -> np.ndarray | None:
+    """Indices of ``n_draws`` draws evenly spaced over ``n_total`` pooled draws, first and last kept.
+
+    ``None`` (keep them all) when ``n_draws`` is ``None`` or not below ``n_total``. Every reader of a fit
+    that thins its draws uses it, so that draw ``n`` of one reading is draw ``n`` of another.
+    """
+    if n_draws is None or n_draws >= n_total:
+        return None
+    return np.linspace(0, n_total - 1, int(n_draws)).round().astype(int)
 
 
 def to_response_model(
@@ -94,8 +105,8 @@ def to_response_model(
         raise ValueError(f"negatives must be one of {sorted(NEGATIVE_SPREAD)}, got {negatives!r}")
     if n_neg > 1:
         tau[:, 0] = np.sqrt(tau[:, 0] ** 2 + kappa**2 * factor(n_neg))
-    if n_draws is not None and n_draws < mu.shape[0]:
-        idx = np.linspace(0, mu.shape[0] - 1, int(n_draws)).round().astype(int)
+    idx = draw_index(mu.shape[0], n_draws)
+    if idx is not None:
         mu, sigma, tau = mu[idx], sigma[idx], tau[idx]
     return ResponseModel(jnp.asarray(mu), jnp.asarray(sigma), jnp.asarray(tau))
 
@@ -112,7 +123,5 @@ def azimuth_sd(posterior: xr.DataTree, n_draws: int | None = None) -> np.ndarray
         return None
     omega = np.asarray(post["omega"].values, dtype=np.float64)
     omega = omega.reshape((-1,) + omega.shape[2:])
-    if n_draws is not None and n_draws < omega.shape[0]:
-        idx = np.linspace(0, omega.shape[0] - 1, int(n_draws)).round().astype(int)
-        omega = omega[idx]
-    return omega
+    idx = draw_index(omega.shape[0], n_draws)
+    return omega if idx is None else omega[idx]
