@@ -363,10 +363,14 @@ def machine_description() -> dict:
 
 
 def stale_fits(models_dir: str | Path) -> list[str]:
-    """Saved hierarchical fits in ``models_dir`` made by another version of the model (file stems).
+    """Saved hierarchical fits in ``models_dir`` that are not the pipeline's model (file stems).
 
-    ``scrppl fit`` refits them (:func:`scrppl.models.study.fit_pair`); a fit stage that holds one is not
-    up to date, however new its files are.
+    A fit is stale when another version of the model made it, or when it has (lacks) the instance x
+    azimuth effect where the pipeline's ``--azimuth-effect auto`` would not (would) give it one: the
+    effect exactly where the fit's grid has more than one ring
+    (:func:`scrppl.models.study.wants_azimuth_effect`). ``scrppl fit`` refits them
+    (:func:`scrppl.models.study.fit_pair`); a fit stage that holds one is not up to date, however new
+    its files are.
     """
     import json
 
@@ -379,11 +383,14 @@ def stale_fits(models_dir: str | Path) -> list[str]:
         try:
             with h5py.File(path, "r") as fh:
                 meta = fh.attrs.get("meta")
-            meta = meta.decode() if isinstance(meta, bytes) else meta
-            version = json.loads(meta or "{}").get("model_version")
-        except (OSError, ValueError):
-            version = None
-        if version != MODEL_VERSION:
+            meta = json.loads((meta.decode() if isinstance(meta, bytes) else meta) or "{}")
+            version = meta.get("model_version")
+            grid = meta.get("grid") or {}
+            rings = len(grid.get("elevations", ())) * len(grid.get("scales", ()))
+            effect_as_asked = bool(meta.get("azimuth_effect")) == (rings > 1)
+        except (OSError, ValueError, TypeError, AttributeError):
+            version, effect_as_asked = None, False
+        if version != MODEL_VERSION or not effect_as_asked:
             stale.append(path.stem)
     return stale
 

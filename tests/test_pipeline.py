@@ -135,6 +135,39 @@ def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_pa
     (models / "hierarchical-dpm-bus.nc").unlink()
     assert is_current(fit)
 
+def test_a_fit_stage_whose_fits_lack_the_azimuth_effect_auto_gives_is_not_up_to_date(tmp_path):
+    """The pipeline fits the instance x azimuth effect exactly where the grid has more than one ring
+    (`scrppl fit --azimuth-effect auto`): a run folder fitted before that default, or by hand with the
+    other setting, must be refitted by `scrppl reproduce`, not read as the pipeline's model."""
+    import h5py
+
+    from scrppl.models.io import MODEL_VERSION
+    from scrppl.pipeline import is_current, stages, stale_fits
+
+    out = tmp_path / "out"
+    models = out / "models"
+    models.mkdir(parents=True)
+    (out / "responses.nc").write_bytes(b"")
+    (models / "diagnostics.json").write_text(json.dumps({}))
+    rings = {"n_azimuth": 8, "elevations": [10.0, 25.0], "scales": [1.0]}
+    one_ring = {"n_azimuth": 8, "elevations": [25.0], "scales": [1.4]}
+    for name, grid, effect in (
+        ("hierarchical-dpm-car.nc", rings, True),  # as auto gives it
+        ("hierarchical-dpm-bus.nc", rings, False),  # fitted before the default
+        ("hierarchical-dpm-cup.nc", one_ring, False),  # as auto gives it
+        ("hierarchical-dpm-mug.nc", one_ring, True),  # by hand, `--azimuth-effect on`
+    ):
+        with h5py.File(models / name, "w") as fh:
+            meta = {"model_version": MODEL_VERSION, "grid": grid, "azimuth_effect": effect}
+            fh.attrs["meta"] = json.dumps(meta)
+    assert stale_fits(models) == ["hierarchical-dpm-bus", "hierarchical-dpm-mug"]
+    fit = next(s for s in stages(tmp_path / "data", out, seed=0, profile="book") if s.name == "fit")
+    assert not is_current(fit)
+    for stem in stale_fits(models):
+        (models / f"{stem}.nc").unlink()
+    assert is_current(fit)
+
+
 
 def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tmp_path):
     """Sizing a profile's sweep anew (other levels, trials or chains) must rerun the sweep stage of an

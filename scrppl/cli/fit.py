@@ -54,10 +54,10 @@ def register(subparsers) -> None:
     p.add_argument(
         "--azimuth-effect",
         choices=("off", "on", "auto"),
-        default="off",
-        help="fit the hierarchical models with an instance x azimuth effect: off (the pipeline's "
-        "model), on, or auto (only on grids with more than one ring). A fit made with the other "
-        "setting is refitted (a later scrppl reproduce of the folder keeps the fits it finds)",
+        default="auto",
+        help="fit the hierarchical models with an instance x azimuth effect: auto (the default: only "
+        "on grids with more than one ring, where it can be told from the noise), on or off. A fit "
+        "made with the other setting is refitted",
     )
     p.add_argument(
         "--progress", action=argparse.BooleanOptionalAction, default=True, help="show progress bars"

@@ -369,6 +369,7 @@ def fit_kway(
     *,
     n_draws: int | None = None,
     progress: bool = True,
+    azimuth_effect: bool | str = "auto",
 ) -> tuple[KwayFit, dict[str, xr.DataTree]]:
     """Fit the K-way models of one detector family by NUTS: one hierarchical fit per target detector.
 
@@ -389,6 +390,10 @@ def fit_kway(
         Posterior draws kept per target in the stacked model (default: all).
     progress
         Show the sampler's progress bars.
+    azimuth_effect
+        The instance x azimuth effect of each fit, as ``scrppl fit`` takes it
+        (:func:`scrppl.models.study.wants_azimuth_effect`; default ``"auto"``, the pipeline's model: the
+        effect where the grid has more than one ring, read for a ring as extra noise).
 
     Returns
     -------
@@ -400,6 +405,7 @@ def fit_kway(
     from scrppl.models.data import extract_view_data
     from scrppl.models.fit import fit_hierarchical
     from scrppl.models.mcmc import DEFAULT_SAMPLER
+    from scrppl.models.study import wants_azimuth_effect
 
     categories = _categories(table)
     config = DEFAULT_SAMPLER if config is None else config
@@ -407,8 +413,9 @@ def fit_kway(
     for j, target in enumerate(categories):
         data, meta = extract_view_data(table, detector, target, split="fit")
         trees[target] = fit_hierarchical(
-            jax.random.fold_in(key, j), data, meta, config, progress=progress, warn=False
-        )
+            jax.random.fold_in(key, j), data, meta, config, progress=progress, warn=False,
+            azimuth_effect=wants_azimuth_effect(azimuth_effect, data),
+        )  # fmt: skip
     model = stack_models([kway_response_model(trees[t], categories) for t in categories], n_draws)
     return KwayFit(model, _info(detector, categories, trees)), trees
 

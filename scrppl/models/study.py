@@ -188,7 +188,7 @@ def fit_pair(
     reuse_since: float | None = None,
     progress: bool = True,
     split: str = "fit",
-    azimuth_effect: bool | str = False,
+    azimuth_effect: bool | str = "auto",
 ) -> tuple[FittedPair, dict]:
     """Fit (or load) the Gaussian and the hierarchical model of one detector x target.
 
@@ -219,8 +219,9 @@ def fit_pair(
         :func:`scrppl.sim.decomposition.fit_oracle` (fitted on the held-out instances themselves).
     azimuth_effect
         Fit the hierarchical model with an instance x azimuth effect (``fit_hierarchical(...,
-        azimuth_effect=True)``): ``True``, ``False``, or ``"auto"`` (:func:`wants_azimuth_effect`: only
-        where the grid has more than one ring, the one place the effect can be told from the noise).
+        azimuth_effect=True)``): ``True``, ``False``, or ``"auto"`` (the default and the pipeline's
+        model; :func:`wants_azimuth_effect`: only where the grid has more than one ring, the one place
+        the effect can be told from the noise).
 
     Returns
     -------
@@ -270,7 +271,7 @@ def _fit_task(
     models_dir: Path,
     config: SamplerConfig,
     stamp: float | None,
-    azimuth_effect: bool | str = False,
+    azimuth_effect: bool | str = "auto",
 ) -> tuple[FittedPair, dict]:
     """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` with ``fold_in(key, j)``.
 
@@ -307,7 +308,7 @@ def fit_study(
     force: bool = False,
     progress: bool = True,
     executor: Executor | None = None,
-    azimuth_effect: bool | str = False,
+    azimuth_effect: bool | str = "auto",
 ) -> FitStudy:
     """Fit both viewpoint models of every detector x target, check them and score them held out.
 
@@ -337,8 +338,9 @@ def fit_study(
         detector x target, with the same keys and so the same draws; each task saves its fits (the
         workers must see ``models_dir``), so a rerun reuses the pairs already fitted. ``None`` fits here.
     azimuth_effect
-        The instance x azimuth effect of every hierarchical fit (:func:`fit_pair`): ``False`` (the
-        pipeline's model), ``True``, or ``"auto"``. The held-out joint density (``heldout.csv``) of a fit
+        The instance x azimuth effect of every hierarchical fit (:func:`fit_pair`): ``"auto"`` (the
+        default and the pipeline's model: with the effect where the grid has more than one ring),
+        ``True`` or ``False``. The held-out joint density (``heldout.csv``) of a fit
         with the effect shares ``v_ia`` among the views of an instance from one azimuth, as the model does.
 
     Returns

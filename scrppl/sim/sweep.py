@@ -361,7 +361,8 @@ def run_point(
     ``key`` is split into the keys of the fit, the trials and the planners (the same planner key for
     both planners: paired trials). The hierarchical model is fitted on the fit split as
     :func:`scrppl.models.study.fit_pair` fits it, fully non-centred and with at most three retries
-    (``settings.retry_longer``; a fit failing its diagnostics after them is recorded, not rerun), and
+    (``settings.retry_longer``; a fit failing its diagnostics after them is recorded, not rerun), with
+    the instance x azimuth effect where the level's grid has more than one ring, and
     saved in ``models_dir``; it is always fitted anew: the point, not the fit,
     is the unit :func:`run_sweep` caches. The trials are ``settings.n_trials`` paired trials, or, with
     ``settings.half_width``, blocks of ``settings.block_trials`` until the interval of the views saved
@@ -384,6 +385,7 @@ def run_point(
     from scrppl.models.fit import RETRY_ACCEPT, RETRY_NONCENTERED, fit_hierarchical
     from scrppl.models.io import model_path, save_posterior
     from scrppl.models.mcmc import SamplerConfig
+    from scrppl.models.study import wants_azimuth_effect
     from scrppl.planning import PlannerConfig
     from scrppl.sim.experiment import run_experiment
     from scrppl.sim.simulator import make_trials
@@ -412,6 +414,8 @@ def run_point(
         retry_longer=settings.retry_longer if retry else None,
         progress=progress,
         warn=False,
+        # the pipeline's model: the instance x azimuth effect where the grid has more than one ring
+        azimuth_effect=wants_azimuth_effect("auto", data),
     )
     attempts = json.loads(tree.attrs["meta"])["attempts"]
     save_posterior(model_path(models_dir, "hierarchical", family, target), tree)
