@@ -753,6 +753,40 @@ def test_fit_kway_recovers_the_category_means_and_round_trips(tmp_path):
     assert back.info == again.info
 
 
+def test_fit_kway_gives_the_azimuth_effect_where_scrppl_fit_does(monkeypatch):
+    """fit_kway fits the pipeline's model: by default (`"auto"`) the instance x azimuth effect on a grid
+    with more than one ring and not on one ring; `"on"` and `"off"` are passed through."""
+    import scrppl.models.fit as fit_module
+    from scrppl.kway.models import fit_kway
+    from scrppl.models.simulate import random_true_model, simulate_response_table
+    from scrppl.views import ViewGrid
+
+    asked = []
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, azimuth_effect=False, **kwargs):
+        asked.append(azimuth_effect)
+        raise Stop  # the setting is all this test needs, not a fit
+
+    monkeypatch.setattr(fit_module, "fit_hierarchical", record)
+    cats = ["c0", "c1"]
+    for grid, setting, want in (
+        (ViewGrid(4, (10.0, 30.0), (1.0,)), "auto", True),
+        (ViewGrid(4, (10.0,), (1.0,)), "auto", False),
+        (ViewGrid(4, (10.0,), (1.0,)), "on", True),
+        (ViewGrid(4, (10.0, 30.0), (1.0,)), "off", False),
+    ):
+        truth = {("dpm", t): random_true_model(jax.random.key(i), grid) for i, t in enumerate(cats)}
+        table = simulate_response_table(
+            jax.random.key(5), truth, cats, 4, grid, {"fit": 2, "test": 2}
+        )
+        with pytest.raises(Stop):
+            fit_kway(jax.random.key(1), table, "dpm", progress=False, azimuth_effect=setting)
+        assert asked.pop() is want
+
+
 @pytest.mark.slow
 def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     from scrppl.cli import main

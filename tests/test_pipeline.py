@@ -135,6 +135,7 @@ def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_pa
     (models / "hierarchical-dpm-bus.nc").unlink()
     assert is_current(fit)
 
+
 def test_a_fit_stage_whose_fits_lack_the_azimuth_effect_auto_gives_is_not_up_to_date(tmp_path):
     """The pipeline fits the instance x azimuth effect exactly where the grid has more than one ring
     (`scrppl fit --azimuth-effect auto`): a run folder fitted before that default, or by hand with the
@@ -166,7 +167,6 @@ def test_a_fit_stage_whose_fits_lack_the_azimuth_effect_auto_gives_is_not_up_to_
     for stem in stale_fits(models):
         (models / f"{stem}.nc").unlink()
     assert is_current(fit)
-
 
 
 def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tmp_path):
