@@ -312,6 +312,17 @@ def _section_diagnostics(out: Path) -> str:
         for d in diag.values()
         if isinstance(d, dict) and isinstance(d.get("rhat_max"), dict)
     )
+    n_effect = sum(
+        bool(d.get("azimuth_effect"))
+        for d in diag.values()
+        if isinstance(d, dict) and isinstance(d.get("rhat_max"), dict)
+    )
+    effect = (
+        f" {n_effect} of {len(rows)} fits have the instance x azimuth effect (`scrppl fit "
+        "--azimuth-effect auto` gives it where the grid has more than one ring)."
+        if n_effect
+        else ""
+    )
     link = _write_csv(out / "report-diagnostics.csv", full)
     th = diag.get("thresholds", {})
     return (
@@ -322,7 +333,7 @@ def _section_diagnostics(out: Path) -> str:
         "non-centred, by the count and signal-to-noise rules of `choose_noncentered`); "
         f"**{n_retried} of {len(rows)} needed a second attempt** (the retry ladder: a higher acceptance "
         "target, shown in `target accept`, then every coefficient non-centred, longer chains, pooled "
-        "noise). Worst parameter of each fit, from "
+        f"noise).{effect} Worst parameter of each fit, from "
         f"`models/diagnostics.json`; every parameter in {link}.\n\n"
         + _md_table(rows, list(rows[0]) if rows else [])
     )

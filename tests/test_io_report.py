@@ -213,6 +213,7 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
         "| dpm/car | NO | 1.021 | 300 | 250 | 2 | 0.81 | 0.9 -> 0.99 | coef[1] |" in text
     )  # R-hat 3, ESS whole; the first attempt's non-centred coefficients
     assert "**1 of 1 needed a second attempt**" in text
+    assert "instance x azimuth effect" not in text  # a fit without it: nothing to say
     assert (
         "| car | paper | gaussian+naive_bayes | 2.50 | 3.25 | -0.750 [-1.000, -0.500] | 0.041 |"
         in text
@@ -235,6 +236,13 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     text = write_report(out, profile="quick", seed=1).read_text()
     assert "| detect | 70.0 | 126.0 | 1.80 |" in text
     assert "| **total** | 100.0 | 159.0 | 1.59 |" in text and "on 2 cores (Test CPU)" in text
+    # a fit with the instance x azimuth effect (scrppl fit --azimuth-effect auto on several rings)
+    diag_path = out / "models" / "diagnostics.json"
+    diag = json.loads(diag_path.read_text())
+    diag["dpm/car"]["azimuth_effect"] = True
+    diag_path.write_text(json.dumps(diag))
+    text = write_report(out, profile="quick", seed=1).read_text()
+    assert "1 of 1 fits have the instance x azimuth effect" in text
 
 
 def test_report_heldout_is_one_row_per_detector_and_target(tmp_path):

@@ -124,11 +124,13 @@ def test_fit_pair_refits_a_saved_fit_made_with_the_other_azimuth_effect(tmp_path
             azimuth_effect=setting,
         )  # fmt: skip
 
-    run("off")
+    _, report = run("off")
+    assert report["azimuth_effect"] is False  # diagnostics.json says which model each fit is
     run(False)  # the same setting: loaded
-    pair, _ = run("auto")  # two rings: auto means on, so the fit without it is refitted
+    pair, report = run("auto")  # two rings: auto means on, so the fit without it is refitted
     assert calls == [False, True]
     assert json.loads(pair.posterior.attrs["meta"])["azimuth_effect"] is True
+    assert report["azimuth_effect"] is True
     assert "omega" in pair.posterior["posterior"]
     run("on")  # loaded
     assert calls == [False, True]

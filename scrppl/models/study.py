@@ -258,6 +258,7 @@ def fit_pair(
     fit_meta = json.loads(tree.attrs["meta"])
     report["noncentered"] = fit_meta.get("noncentered")
     report["attempts"] = fit_meta.get("attempts", [])
+    report["azimuth_effect"] = bool(fit_meta.get("azimuth_effect", False))
     gauss = load_response_model(models_dir, "gaussian", detector, target).response_model
     pair = FittedPair(gauss, to_response_model(tree), tree, meta["transform"])
     return pair, report
