@@ -21,6 +21,13 @@ target to use both cores) in the world each filter assumes, kept as ``filter_wor
         --rows random,greedy_joint,confident,clairvoyant --model-world --world filter --model-optimal
     python benchmarks/record_decomposition.py --filter-world-from RESULTS_bicycle RESULTS_car ...
 
+The same bracket for the model with the instance x azimuth effect (the pipeline's model since
+``scrppl fit --azimuth-effect auto`` became the default; the record's other parts are of the one-effect
+model), from folders of a ``make reproduce`` made with it, kept as ``filter_world_azimuth_effect``::
+
+    python benchmarks/record_decomposition.py --filter-world-from RESULTS_bicycle ... \
+        --filter-world-key filter_world_azimuth_effect --model "..."
+
 The rollout planner (``PlannerConfig("rollout")``, sampled futures; about 65 ms a decision with the
 instance-aware filter, so a few hundred trials) on the real responses and in the filter world, kept as
 ``rollout`` and ``rollout_filter_world``::
@@ -99,6 +106,14 @@ def main(argv=None) -> None:
         "--oracle-from", type=Path, default=None,
         help="folder of a decomposition.json run with --oracle (default: none)",
     )  # fmt: skip
+    ap.add_argument(
+        "--filter-world-key", default="filter_world",
+        choices=("filter_world", "filter_world_azimuth_effect"),
+        help="the record's key for --filter-world-from (default: filter_world)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--model", default=None, help="the model of the --filter-world-from runs, in words"
+    )
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
     old = {}
@@ -125,7 +140,7 @@ def main(argv=None) -> None:
         raise SystemExit(
             f"{args.oracle_from / 'decomposition.json'}: has no oracle rows (run with --oracle)"
         )
-    filter_world = old.get("filter_world")
+    worlds = {k: old.get(k) for k in ("filter_world", "filter_world_azimuth_effect")}
     if args.filter_world_from is not None:
         filter_world = merge_targets(
             [d / "decomposition-filter-world.json" for d in args.filter_world_from]
@@ -133,6 +148,9 @@ def main(argv=None) -> None:
         if filter_world["settings"].get("world") != "filter":
             raise SystemExit(f"{args.filter_world_from[0]}: not a --world filter run")
         filter_world["machine"] = machine_description()
+        if args.model is not None:
+            filter_world["model"] = args.model
+        worlds[args.filter_world_key] = filter_world
     rollout = {
         "rollout": old.get("rollout"),
         "rollout_filter_world": old.get("rollout_filter_world"),
@@ -162,11 +180,17 @@ def main(argv=None) -> None:
             "clairvoyant [--model-world [--world filter --model-optimal]]"
         ),
         "machine": old.get("machine") or machine_description(),  # of the real run
+        **({"model": old["model"]} if "model" in old else {}),
         "real": real,
         "model_world": world,
         "oracle": oracle,
-        "filter_world": filter_world,
+        "filter_world": worlds["filter_world"],
         **rollout,
+        **(
+            {"filter_world_azimuth_effect": worlds["filter_world_azimuth_effect"]}
+            if worlds["filter_world_azimuth_effect"] is not None
+            else {}
+        ),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

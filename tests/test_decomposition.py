@@ -700,6 +700,25 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     assert third["rollout"]["targets"] == {"car": entry} and third["rollout"]["settings"] == rows
     assert third["rollout_filter_world"]["settings"]["world"] == "filter"
     assert third["filter_world"] == again["filter_world"] and third["real"] == record["real"]
+    # the bracket with another model goes to its own key, the one-effect model's is kept
+    mod.main(
+        [
+            "--filter-world-from", str(tmp_path / "bike"),
+            "--filter-world-key", "filter_world_azimuth_effect", "--model", "u + v",
+            "--out", str(out),
+        ]
+    )  # fmt: skip
+    fourth = json.loads(out.read_text())
+    assert fourth["filter_world"] == again["filter_world"] and fourth["rollout"] == third["rollout"]
+    assert list(fourth["filter_world_azimuth_effect"]["targets"]) == ["bike"]
+    assert fourth["filter_world_azimuth_effect"]["model"] == "u + v"
+    mod.main(
+        ["--rollout-from", str(tmp_path / "roll"), "--out", str(out)]
+    )  # later additions keep it
+    assert (
+        json.loads(out.read_text())["filter_world_azimuth_effect"]
+        == fourth["filter_world_azimuth_effect"]
+    )
     (tmp_path / "rollw").mkdir()
     (tmp_path / "rollw" / "decomposition.json").write_text(
         (tmp_path / "car" / "decomposition-filter-world.json").read_text()
