@@ -346,6 +346,9 @@ def test_heldout_scores_read_an_azimuth_effect_as_a_shared_block(rng):
         np.testing.assert_allclose(sc[name], plain[name], rtol=1e-6)
     with pytest.raises(ValueError, match="omega has shape"):
         heldout_scores(model, data, omega=omega[:, :1])
+    # an omega not folded into the model's sigma (larger than a noise sd) is refused, not clamped
+    with pytest.raises(ValueError, match="omega exceeds the model's noise sd"):
+        heldout_scores(model, data, omega=omega + 10 * np.asarray(model.sigma).max())
     # evaluate_models hands each kind its own omega (none to the others)
     frame = evaluate_models({"a": model, "b": model}, data, omegas={"a": omega}).set_index(
         ["kind", "class"]
@@ -364,6 +367,9 @@ def test_draw_index_spreads_the_kept_draws_and_keeps_all_when_asked_for_as_many(
     assert (
         draw_index(100, None) is None and draw_index(100, 100) is None and draw_index(5, 8) is None
     )
+    for bad in (0, -3):  # no draw kept: refused, not an empty model
+        with pytest.raises(ValueError, match="n_draws must be at least 1"):
+            draw_index(100, bad)
 
 
 def test_azimuth_sd_keeps_the_draws_of_to_response_model(rng):

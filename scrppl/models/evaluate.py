@@ -132,6 +132,14 @@ def heldout_scores(
             raise ValueError(
                 f"omega has shape {omega.shape}, the model's draws x classes are {model.tau.shape}"
             )
+        # folded into sigma, omega cannot exceed any of its class's noise sds (it would be unfolded to
+        # a negative variance, silently clamped to zero)
+        floor = model.sigma.min(axis=tuple(range(2, model.sigma.ndim)))  # (N, O)
+        if bool((omega > floor * (1 + 1e-6)).any()):
+            raise ValueError(
+                "omega exceeds the model's noise sd for some draw and class: pass the model with omega "
+                "folded into sigma (to_response_model) and the omega of the same draws (azimuth_sd)"
+            )
     joint_draws, cdf = _joint_and_cdf(
         model.mu, model.sigma, model.tau, y, jnp.asarray(obs), o, weight, omega
     )

@@ -38,9 +38,12 @@ NEGATIVE_SPREAD = {
 def draw_index(n_total: int, n_draws: int | None) -> np.ndarray | None:
     """Indices of ``n_draws`` draws evenly spaced over ``n_total`` pooled draws, first and last kept.
 
-    ``None`` (keep them all) when ``n_draws`` is ``None`` or not below ``n_total``. Every reader of a fit
+    ``None`` (keep them all) when ``n_draws`` is ``None`` or not below ``n_total``; ``n_draws`` below 1 is
+    refused (it would keep no draw). Every reader of a fit
     that thins its draws uses it, so that draw ``n`` of one reading is draw ``n`` of another.
     """
+    if n_draws is not None and n_draws < 1:
+        raise ValueError(f"n_draws must be at least 1 (or None for every draw), got {n_draws}")
     if n_draws is None or n_draws >= n_total:
         return None
     return np.linspace(0, n_total - 1, int(n_draws)).round().astype(int)
