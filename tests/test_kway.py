@@ -572,8 +572,8 @@ def test_class_metrics_and_confusion():
 
 
 @pytest.mark.slow  # about 30 s: make test-slow (CI)
-def test_experiment_on_a_separable_table(rng):
-    """Responses that name the category outright: every method is right after one view."""
+def separable_experiment(rng):
+    """A table whose responses name the category outright, its trials and K-way and binary models."""
     k, n_i, a = 3, 4, 4
     cats = ["x", "y", "z"]
     score = rng.normal(0, 0.1, size=(1, k, k, n_i, a, 1, 1))
@@ -600,6 +600,12 @@ def test_experiment_on_a_separable_table(rng):
         jnp.full((k, 1, 2, a, 1, 1), 0.3, jnp.float32),
         jnp.full((k, 1, 2), 0.1, jnp.float32),
     )
+    return table, trials, model, binary, cats
+
+
+def test_experiment_on_a_separable_table(rng):
+    """Responses that name the category outright: every method is right after one view."""
+    table, trials, model, binary, cats = separable_experiment(rng)
     ds = run_kway_experiment(
         jax.random.key(1),
         model,
@@ -656,6 +662,24 @@ def test_experiment_on_a_separable_table(rng):
         )
     with pytest.raises(ValueError, match="one target detector per category"):
         run_kway_experiment(jax.random.key(1), KwayModel(*(x[:2] for x in model)), trials)
+
+
+def test_experiment_chunks_on_threads_give_the_same_trials(rng, monkeypatch):
+    """Chunks of trials run on several threads: the same dataset as one chunk or one thread."""
+    import scrppl.kway.experiment as KE
+
+    _, trials, model, binary, cats = separable_experiment(rng)
+    opts = dict(binary=binary, config=PlannerConfig(n_samples=32), n_steps=3, categories=cats)
+    whole = run_kway_experiment(jax.random.key(1), model, trials, chunk_size=12, **opts)
+    runs = []
+    for threads in (1, 3):
+        monkeypatch.setattr(KE, "_chunk_threads", lambda threads=threads: threads)
+        runs.append(run_kway_experiment(jax.random.key(1), model, trials, chunk_size=5, **opts))
+    # 12 trials in chunks of 5: three chunks, the last padded
+    for ds in runs:
+        xr.testing.assert_identical(ds, whole)
+    # and the trials differ from one another (a chunk repeated in place of another would show)
+    assert len({tuple(row) for row in ds["azimuth"].values[0]}) > 1
 
 
 @pytest.mark.slow  # three experiments compiled (about 40 s): make test-slow (CI)

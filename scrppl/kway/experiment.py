@@ -292,13 +292,43 @@ def _run(
     chunk = min(int(chunk_size), n)
     run = _runner(filter, config, int(n_steps), bool(ovr))
     host = [np.asarray(x) for x in (trials.responses, trials.available, trials.pose, trials.start)]
-    outs = []
-    for lo in tqdm(range(0, n, chunk), desc=desc, disable=not progress, leave=False):
+
+    def one_chunk(lo: int) -> list[np.ndarray]:
         sel = np.minimum(np.arange(lo, lo + chunk), n - 1)  # the last chunk padded with repeats
         out = run(key, np.int32(lo), model, binary, *(x[sel] for x in host), log_weight)
         keep = min(chunk, n - lo)
-        outs.append([np.asarray(x)[:keep] for x in out])
+        return [np.asarray(x)[:keep] for x in out]
+
+    starts = range(0, n, chunk)
+    workers = min(_chunk_threads(), len(starts))
+    bar = tqdm(total=len(starts), desc=desc, disable=not progress, leave=False)
+    if workers <= 1:
+        outs = []
+        for lo in starts:
+            outs.append(one_chunk(lo))
+            bar.update()
+    else:
+        # each chunk's trials have their own keys (fold_in by trial index), so chunks are independent:
+        # running them on several threads (XLA releases the GIL) gives the same arrays in the same order
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(workers) as pool:
+            outs = []
+            for out in pool.map(one_chunk, starts):
+                outs.append(out)
+                bar.update()
+    bar.close()
     return [np.concatenate(parts) for parts in zip(*outs, strict=True)]
+
+
+def _chunk_threads() -> int:
+    """Threads that run chunks of trials at once: one per core this process may use."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 # ------------------------------------------------------------------------------------------------
