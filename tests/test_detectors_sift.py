@@ -14,7 +14,7 @@ from scrppl.detectors import (
     proto_object_window,
     read_detector_meta,
 )
-from scrppl.detectors.sift import _balanced_subset, ratio_test_matches
+from scrppl.detectors.sift import _balanced_subset, pack_model, ratio_test_matches
 
 
 def _full_box(img):
@@ -150,6 +150,22 @@ def test_ratio_test_against_brute_force():
             else:
                 assert kept.tolist() == [rivals[np.argmin(best[rivals, v])]]
     assert acc[:, 2].sum() > 1 and uacc[:, 2].sum() == 1  # view 2 has one keypoint
+    # a model packed once (as a detector does) gives the same matches
+    packed = pack_model(model, valid)
+    assert packed.matrix.shape == (int(valid.sum()), 9)
+    for flag in (False, True):
+        got = ratio_test_matches(q, model, valid, 0.8, packed, unique=flag)
+        want = (acc, nearest) if not flag else (uacc, unearest)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    # a view with no descriptor at all matches nothing
+    empty = valid.copy()
+    empty[0] = False
+    acc0, _ = ratio_test_matches(q, model, empty, 0.8, unique=False)
+    assert not acc0[:, 0].any()
+    np.testing.assert_array_equal(acc0[:, 1:], acc[:, 1:])
+    with pytest.raises(ValueError, match=r"\(V, K\) mask"):
+        pack_model(model, valid[:, :3])
 
 
 def test_model_views_balanced_over_azimuth():

@@ -54,7 +54,8 @@ __all__ = [
     "BagOfFeatures",
     "extract_sift",
     "ratio_test_matches",
-    "model_squared_norms",
+    "PackedModel",
+    "pack_model",
 ]
 
 _SIFT_CACHE: dict[int, Any] = {}
@@ -164,12 +165,46 @@ def extract_sift(
     return SiftFeatures(pts, desc, (int(offset[0]), int(offset[1])), scale, (int(nw), int(nh)), {})
 
 
+class PackedModel(NamedTuple):
+    """Model descriptors laid out for :func:`ratio_test_matches` (:func:`pack_model`).
+
+    Attributes
+    ----------
+    matrix
+        ``(M, D + 1)`` float32: the ``M`` real (non-padding) descriptors, each followed by its squared
+        norm, so that one matrix product with ``[-2 q, 1]`` gives ``|m|^2 - 2 q.m``.
+    index
+        ``(M,)`` positions of those descriptors in the flattened ``(V * K)`` padded layout.
+    shape
+        ``(V, K)``: model views and descriptors per view, padding included.
+    """
+
+    matrix: np.ndarray
+    index: np.ndarray
+    shape: tuple[int, int]
+
+
+def pack_model(model: np.ndarray, valid: np.ndarray) -> PackedModel:
+    """Pack ``(V, K, D)`` padded model descriptors and their ``(V, K)`` mask for matching."""
+    m = np.asarray(model, dtype=np.float32)
+    if m.ndim != 3 or np.shape(valid) != m.shape[:2]:
+        raise ValueError(
+            f"model must be (V, K, D) with a (V, K) mask, got {m.shape} and {np.shape(valid)}"
+        )
+    n_views, k, d = m.shape
+    index = np.flatnonzero(np.asarray(valid, dtype=bool).ravel())
+    desc = m.reshape(n_views * k, d)[index]
+    sq = np.einsum("md,md->m", desc, desc)
+    matrix = np.ascontiguousarray(np.concatenate([desc, sq[:, None]], axis=1), dtype=np.float32)
+    return PackedModel(matrix, index, (n_views, k))
+
+
 def ratio_test_matches(
     query: np.ndarray,
     model: np.ndarray,
     valid: np.ndarray,
     ratio: float,
-    model_sqnorm: np.ndarray | None = None,
+    packed: PackedModel | None = None,
     unique: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lowe ratio-test matches of query descriptors against every model view at once.
@@ -185,8 +220,8 @@ def ratio_test_matches(
     ratio
         Lowe's ratio: a match is kept when ``d1 < ratio * d2`` (Euclidean distances to the nearest and
         second-nearest descriptor of the same view; a view with one descriptor has ``d2 = inf``).
-    model_sqnorm
-        Optional precomputed :func:`model_squared_norms` of the model.
+    packed
+        Optional :func:`pack_model` of ``model`` and ``valid`` (a detector packs its model once).
     unique
         Keep matches one-to-one: when several query keypoints pass the test with the same model
         keypoint, only the closest is kept (ties: the lowest query index). Without this a few generic
@@ -198,25 +233,38 @@ def ratio_test_matches(
         ``(Q, V)`` boolean: query keypoint ``q`` has a ratio-test match in view ``v``.
     nearest
         ``(Q, V)`` int: index ``k`` of the nearest model descriptor of view ``v``.
+
+    Notes
+    -----
+    Squared distances are ``|q|^2 + (|m|^2 - 2 q.m)``; the bracket comes from one matrix product over
+    the real descriptors only (padding, often a third of the layout, costs nothing) and is laid out
+    ``(V, K, Q)``, so the nearest and second-nearest in each view are reductions over contiguous rows.
+    ``|q|^2`` is the same for every model descriptor, so it is added to the two kept distances only.
     """
     q = np.asarray(query, dtype=np.float32)
     n_views, k, d = model.shape
     if q.shape[0] == 0 or n_views == 0:
         return np.zeros((q.shape[0], n_views), bool), np.zeros((q.shape[0], n_views), np.int64)
-    flat = model.reshape(n_views * k, d)
-    if model_sqnorm is None:
-        model_sqnorm = model_squared_norms(model, valid)
-    # squared distances |q|^2 + |m|^2 - 2 q.m, in place; padding has |m|^2 = inf
-    d2 = q @ flat.T
-    d2 *= -2.0
-    d2 += np.einsum("qd,qd->q", q, q)[:, None]
-    d2 += model_sqnorm[None, :]
-    np.maximum(d2, 0.0, out=d2)
-    d2 = d2.reshape(q.shape[0], n_views, k)
-    nearest = np.argmin(d2, axis=2)
-    best = np.take_along_axis(d2, nearest[:, :, None], axis=2)[:, :, 0]
-    np.put_along_axis(d2, nearest[:, :, None], np.inf, axis=2)
-    second = d2.min(axis=2)
+    if packed is None:
+        packed = pack_model(model, valid)
+    n_q = q.shape[0]
+    qa = np.empty((n_q, d + 1), np.float32)
+    np.multiply(q, -2.0, out=qa[:, :d])
+    qa[:, d] = 1.0
+    # (V * K, Q): |m|^2 - 2 q.m for real descriptors, inf for padding
+    e = np.full((n_views * k, n_q), np.inf, np.float32)
+    e[packed.index] = packed.matrix @ qa.T
+    e3 = e.reshape(n_views, k, n_q)
+    nearest_vq = np.argmin(e3, axis=1)  # (V, Q)
+    flat_at = (np.arange(n_views)[:, None] * k + nearest_vq) * n_q + np.arange(n_q)[None, :]
+    flat = e.reshape(-1)
+    best_e = flat[flat_at]
+    flat[flat_at] = np.inf
+    second_e = e3.min(axis=1)
+    q_sq = np.einsum("qd,qd->q", q, q)[None, :]
+    best = np.maximum(best_e + q_sq, 0.0).T  # (Q, V) squared distances
+    second = np.maximum(second_e + q_sq, 0.0).T
+    nearest = np.ascontiguousarray(nearest_vq.T).astype(np.int64)
     accepted = np.isfinite(best) & (best < (ratio * ratio) * second)
     if unique:
         # one-to-one: of the query keypoints matched to the same model keypoint, keep the closest
@@ -229,13 +277,6 @@ def ratio_test_matches(
             accepted = np.zeros_like(accepted)
             accepted[qi[first], vi[first]] = True
     return accepted, nearest
-
-
-def model_squared_norms(model: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``(V * K,)`` squared norms of the flattened model descriptors, ``inf`` for padding."""
-    flat = np.asarray(model, dtype=np.float32).reshape(-1, model.shape[-1])
-    sq = np.einsum("md,md->m", flat, flat)
-    return np.where(np.asarray(valid).ravel(), sq, np.float32(np.inf)).astype(np.float32)
 
 
 def _balanced_subset(seed: int, azimuths: np.ndarray, n: int) -> np.ndarray:
@@ -317,7 +358,7 @@ class SiftMatcher(Detector):
         self._points: np.ndarray | None = None  # (V, K, 2)
         self._valid: np.ndarray | None = None  # (V, K)
         self._views: np.ndarray | None = None  # (V, 4): instance, azimuth, elevation, scale
-        self._sqnorm: np.ndarray | None = None  # (V * K,)
+        self._packed: PackedModel | None = None
         self._model_key: str | None = None
 
     @property
@@ -386,7 +427,7 @@ class SiftMatcher(Detector):
                 f"{type(self).__name__} for {self.target!r}: no SIFT keypoints in any training view"
             )
         self._descriptors, self._points, self._valid = desc, pts, valid
-        self._sqnorm, self._model_key = None, None
+        self._packed, self._model_key = None, None
         self._views = np.asarray(
             [
                 (
@@ -428,8 +469,8 @@ class SiftMatcher(Detector):
         cache = features.cache
         if cache is not None and key in cache:
             return cache[key]
-        if self._sqnorm is None:
-            self._sqnorm = model_squared_norms(self._descriptors, self._valid)
+        if self._packed is None:
+            self._packed = pack_model(self._descriptors, self._valid)
         # a small product: OpenBLAS threads cost more than they gain (many times more on a busy machine)
         with single_threaded_blas():
             out = ratio_test_matches(
@@ -437,7 +478,7 @@ class SiftMatcher(Detector):
                 self._descriptors,
                 self._valid,
                 float(self.hyperparameters["ratio"]),
-                self._sqnorm,
+                self._packed,
             )
         if cache is not None:
             cache[key] = out
@@ -540,7 +581,7 @@ class SiftMatcher(Detector):
         self._points = np.asarray(arrays["points"], np.float32)
         self._valid = np.asarray(arrays["valid"], bool)
         self._views = np.asarray(arrays["views"], np.int64)
-        self._sqnorm, self._model_key = None, None
+        self._packed, self._model_key = None, None
 
 
 class BagOfFeatures(SiftMatcher):
