@@ -330,7 +330,8 @@ def test_fits_and_experiments_on_a_cluster_equal_those_in_process(responses, rem
         fits = fit_study(key, responses, models, config, progress=False, executor=ex)
         study = run_study(
             1, load_response_table(responses), models, "dpm", ["c0", "c1"],
-            trials=6, config=PlannerConfig(n_samples=8), kinds=["gaussian"], executor=ex,
+            trials=6, large_trials=8, config=PlannerConfig(n_samples=8),
+            kinds=["gaussian", "hierarchical"], executor=ex,
         )  # fmt: skip
         return fits, study
 
@@ -354,8 +355,12 @@ def test_fits_and_experiments_on_a_cluster_equal_those_in_process(responses, rem
     )
     xr.testing.assert_identical(study.trials, study2.trials)
     assert list(study2.trials["target"].values) == ["c0", "c1"]
+    # the large experiment ran as one task per target and model kind there, in one piece here
+    xr.testing.assert_identical(study.large, study2.large)
+    assert study.large.sizes["method"] == 3  # gaussian + naive Bayes, hierarchical + both filters
     assert study.calibration == study2.calibration
-    drop = ("seconds", "seconds_total")
+    assert study.summary["settings"] == study2.summary["settings"]
+    drop = ("seconds", "seconds_total", "large_seconds")
     for t in ("c0", "c1"):
         a = {k: v for k, v in study.summary["targets"][t].items() if k not in drop}
         b = {k: v for k, v in study2.summary["targets"][t].items() if k not in drop}

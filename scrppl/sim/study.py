@@ -465,14 +465,46 @@ def _silent(msg: str) -> None:
     pass
 
 
-def _study_task(job: tuple[int, str], options: dict[str, Any]) -> Study:
-    """One cluster task of :func:`run_study`: target number ``i`` alone, with its own key."""
-    i, target = job
-    return run_study(**{**options, "targets": [target], "target_offset": i})
+def _study_task(job: tuple[int, str, str | None], options: dict[str, Any]) -> Any:
+    """One cluster task of :func:`run_study`: target number ``i`` with its own key.
+
+    ``kind`` ``None``: the target's paper experiment and Fig. 4 trial (:func:`run_study` without the
+    large experiment). A model kind: that kind's methods in the target's large experiment, with the
+    keys and trials :func:`run_study` gives it in one piece -- ``(experiment, seconds)``, or ``None``
+    when the kind has no saved model.
+    """
+    import time
+
+    i, target, kind = job
+    if kind is None:
+        return run_study(**{**options, "targets": [target], "target_offset": i, "large_trials": 0})
+    table = options["table"]
+    planners = study_planners(options["config"])
+    _, k_run, k_large, _ = jax.random.split(
+        jax.random.fold_in(jax.random.key(options["seed"]), i), 4
+    )
+    try:
+        methods, _ = load_methods(
+            k_large, options["models_dir"], table, options["detector"], target,
+            options["large_trials"], kinds=(kind,), max_draws=options["large_max_draws"],
+        )  # fmt: skip
+    except FileNotFoundError:
+        return None  # as run_study skips a kind with no saved model
+    t0 = time.perf_counter()
+    big = run_experiment(
+        k_run, methods, planners, category_names=table["category"].values.tolist(),
+        chunk_size=2048,
+    )  # fmt: skip
+    return big, time.perf_counter() - t0
 
 
 def _run_study_per_target(ex: Executor, params: dict[str, Any]) -> Study:
-    """:func:`run_study` with one task per target on ``ex``, merged as a run in process merges them."""
+    """:func:`run_study` on ``ex``, merged as a run in process merges it.
+
+    Each target's paper experiment is one task and its large experiment one task per model kind (the
+    kinds' methods share trials and keys, so they split without changing a number); the large ones go
+    first, so that the short ones fill the gaps at the end and both cores of a small machine stay busy.
+    """
     import time
 
     t0 = time.perf_counter()
@@ -480,16 +512,43 @@ def _run_study_per_target(ex: Executor, params: dict[str, Any]) -> Study:
     log, progress = params["log"], params["progress"]
     options = {k: v for k, v in params.items() if k not in ("executor", "targets", "target_offset")}
     options.update(log=_silent, progress=False)  # the workers report nothing; the bar is here
-    jobs = list(enumerate(targets, start=params["target_offset"]))
-    log(f"[simulate] {len(targets)} targets on {ex.scheduler}")
-    parts = ex.map(_study_task, jobs, options, desc="simulate", progress=progress)
+    numbered = list(enumerate(targets, start=params["target_offset"]))
+    large_trials = int(params["large_trials"])
+    kinds = list(params["kinds"]) if large_trials > 0 else []
+    # the costliest kinds (the last: hierarchical) first
+    jobs = [(i, t, kind) for kind in reversed(kinds) for i, t in numbered]
+    jobs += [(i, t, None) for i, t in numbered]
+    log(f"[simulate] {len(targets)} targets on {ex.scheduler}, {len(jobs)} tasks")
+    done = ex.map(_study_task, jobs, options, desc="simulate", progress=progress)
+    results = dict(zip(jobs, done, strict=True))
+    parts = [results[i, t, None] for i, t in numbered]
+    config = study_planners(params["config"])
+    config = config[next(iter(config))]
+    seed = params["seed"]
+    larges = []
+    for (i, t), part in zip(numbered, parts, strict=True):
+        entry = part.summary["targets"][t]
+        ran = [results[i, t, kind] for kind in kinds if results[i, t, kind] is not None]
+        if not ran:
+            continue
+        methods = [r[0] for r in ran]
+        big = xr.concat(methods, dim="method") if len(methods) > 1 else methods[0]
+        entry["large_experiment"] = headline(
+            big,
+            summarise(big, seed=seed, n_boot=200),
+            compare_planners(big, config.planner, seed=seed, n_boot=500),
+            calibration(big),
+        )
+        entry["large_seconds"] = round(sum(r[1] for r in ran), 2)
+        larges.append(xr.concat([big], dim="target", join="outer").assign_coords(target=[t]))
     # what concatenating the targets' datasets in one process gives (coordinates that differ between
     # targets gain the target dimension)
     stack = dict(dim="target", join="outer", coords="different", compat="equals")
     paper = xr.concat([p.trials for p in parts], **stack)
-    large = xr.concat([p.large for p in parts], **stack) if parts[0].large is not None else None
+    large = xr.concat(larges, **stack) if larges else None
     pooled = pooled_calibration([p.trials.isel(target=0, drop=True) for p in parts])
     summary = dict(parts[0].summary)
+    summary["settings"] = {**summary["settings"], "large_trials": large_trials}
     summary["targets"] = {t: p.summary["targets"][t] for t, p in zip(targets, parts, strict=True)}
     summary["calibration_ece_pooled_over_targets"] = {
         k: round(v["ece"], 4) for k, v in pooled.items()
