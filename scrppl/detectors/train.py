@@ -173,6 +173,10 @@ def train_detectors(
                 out[fam][target] = det
                 bar.update(1)
         shared = (dataset, views, seed, split, max_negatives, hyperparameters)
+        # the families that mine negatives (DPM, HOG: tens of seconds each) first, the quick ones after
+        # them: these fill the gaps at the end, so no worker waits alone on a long one (every detector is
+        # trained on its own with its own seed, so the order changes no result)
+        deferred.sort(key=lambda job: not getattr(classes[job[0]], "uses_negatives", True))
         if not deferred:
             tasks: Any = ()
         elif on_cluster:
