@@ -16,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import cloudpickle
 import numpy as np
+import pandas as pd
 import pytest
 import xarray as xr
 from test_detectors_scoring import _make_toy
@@ -349,6 +350,9 @@ def test_fits_and_experiments_on_a_cluster_equal_those_in_process(responses, rem
             fits.fits[pair].hierarchical.mu, fits2.fits[pair].hierarchical.mu
         )
     assert fits.diagnostics == fits2.diagnostics
+    # the held-out scores, computed by each fit's task there and after the fits here
+    assert fits.heldout is not None and len(fits.heldout) > 0
+    pd.testing.assert_frame_equal(fits.heldout, fits2.heldout)
     # the pairs differ from each other (each has its own key and data): the check above can fail
     assert not np.array_equal(
         fits.fits["dpm", "c0"].hierarchical.mu, fits.fits["dpm", "c1"].hierarchical.mu

@@ -273,18 +273,35 @@ def _fit_task(
     config: SamplerConfig,
     stamp: float | None,
     azimuth_effect: bool | str = "auto",
-) -> tuple[FittedPair, dict]:
-    """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` with ``fold_in(key, j)``.
+) -> tuple[FittedPair, dict, pd.DataFrame | None]:
+    """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` and its held-out scores.
 
-    The key arrives as its raw data (``impl`` names a typed key's implementation), so that the task
+    Pair ``j`` is fitted with ``fold_in(key, j)`` and scored by :func:`_heldout_scores`. The key arrives as its raw data (``impl`` names a typed key's implementation), so that the task
     reaches the worker without JAX (:mod:`scrppl.parallel` sets the worker's JAX flags first).
     """
     j, (det, tgt) = job
     key = jnp.asarray(raw_key) if impl is None else jax.random.wrap_key_data(raw_key, impl=impl)
-    return fit_pair(
+    pair, report = fit_pair(
         jax.random.fold_in(key, j), table, models_dir, det, tgt, config,
         reuse_since=stamp, progress=False, azimuth_effect=azimuth_effect,
     )  # fmt: skip
+    # scored held out on the worker too: beside the other fits rather than after all of them
+    return pair, report, _heldout_scores(table, det, tgt, pair)
+
+
+def _heldout_scores(table: xr.Dataset, det: str, tgt: str, pair: FittedPair) -> pd.DataFrame | None:
+    """:func:`evaluate_models` of both fits of a pair on the table's ``test`` instances (``None``: none)."""
+    if not (table["split"].values.astype(str) == "test").any():
+        return None
+    test, _ = extract_view_data(table, det, tgt, split="test")
+    models = {"gaussian": pair.gaussian, "hierarchical": pair.hierarchical}
+    omega = azimuth_sd(pair.posterior)  # the draws to_response_model kept (all of them)
+    return evaluate_models(
+        models,
+        test,
+        {"detector": det, "target": tgt},
+        None if omega is None else {"hierarchical": omega},
+    )
 
 
 def failed_fits(
@@ -353,7 +370,6 @@ def fit_study(
     detectors = select_names(detectors, [str(d) for d in table["detector"].values], "detector")
     targets = select_names(targets, [str(t) for t in table["target"].values], "target")
     stamp = None if force else responses.stat().st_mtime
-    has_test = (table["split"].values.astype(str) == "test").any()
     diag_path = models_dir / "diagnostics.json"
     try:
         diagnostics = read_json(diag_path, "MCMC diagnostics") if diag_path.exists() else {}
@@ -375,8 +391,9 @@ def fit_study(
             azimuth_effect, desc="scrppl fit", progress=progress,
         )  # fmt: skip
     else:
-        done = (
-            fit_pair(
+
+        def here(job: int, det: str, tgt: str):
+            pair, report = fit_pair(
                 jax.random.fold_in(key, job),
                 table,
                 models_dir,
@@ -387,23 +404,17 @@ def fit_study(
                 progress=progress,
                 azimuth_effect=azimuth_effect,
             )
+            return pair, report, _heldout_scores(table, det, tgt, pair)
+
+        done = (
+            here(job, det, tgt)
             for job, (det, tgt) in enumerate(tqdm(jobs, desc="scrppl fit", disable=not progress))
         )
-    for (det, tgt), (pair, report) in zip(jobs, done, strict=True):
+    for (det, tgt), (pair, report, scores) in zip(jobs, done, strict=True):
         diagnostics[f"{det}/{tgt}"] = report
         fits[(det, tgt)] = pair
-        if has_test:
-            test, _ = extract_view_data(table, det, tgt, split="test")
-            models = {"gaussian": pair.gaussian, "hierarchical": pair.hierarchical}
-            omega = azimuth_sd(pair.posterior)  # the draws to_response_model kept (all of them)
-            heldout.append(
-                evaluate_models(
-                    models,
-                    test,
-                    {"detector": det, "target": tgt},
-                    None if omega is None else {"hierarchical": omega},
-                )
-            )
+        if scores is not None:
+            heldout.append(scores)
     with atomic_path(diag_path) as tmp:
         tmp.write_text(json.dumps({"thresholds": THRESHOLDS, **diagnostics}, indent=1))
     frame = None
