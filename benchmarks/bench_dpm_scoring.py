@@ -22,10 +22,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-import json
-import statistics
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,32 +30,13 @@ RESULTS = Path(__file__).parent / "results" / "dpm-scoring.json"
 
 
 def main() -> None:
-    from _record import update_record
+    from _record import alternating_cpu_ms, record_windows, sampled_windows, window_fields
 
-    from scrppl.cli._common import dataset_root
-    from scrppl.datasets import open_dataset
-    from scrppl.detectors.base import load_detector
     from scrppl.detectors.dpm import DeformablePartModel
     from scrppl.detectors.dpm._blas import single_threaded_blas
     from scrppl.detectors.dpm.model import pyramid_best
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("results", type=Path, help="a run folder with detectors/dpm-*.npz")
-    ap.add_argument("--profile", default="full")
-    ap.add_argument("--preset", default=None)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--windows", type=int, default=200)
-    ap.add_argument("--repeats", type=int, default=3)
-    args = ap.parse_args()
-
-    ns = argparse.Namespace(profile=args.profile, seed=args.seed, root=None, preset=args.preset)
-    ds = open_dataset(dataset_root(ns), split_seed=args.seed)
-    dets = [load_detector(p) for p in sorted((args.results / "detectors").glob("dpm-*.npz"))]
-    if not dets:
-        raise SystemExit(f"no DPM detectors in {args.results / 'detectors'}")
-    rows = ds.select()
-    sample = rows.iloc[np.linspace(0, len(rows) - 1, min(args.windows, len(rows))).astype(int)]
-    windows = [dets[0].prepare(ds.load_image(r), ds.bbox(r)) for _, r in sample.iterrows()]
+    args, dets, windows, n_rows = sampled_windows(__doc__.splitlines()[0], "dpm")
 
     def per_model() -> np.ndarray:
         out = np.full((len(windows), len(dets)), -np.inf)
@@ -72,22 +49,12 @@ def main() -> None:
     def batched() -> np.ndarray:
         return np.array([DeformablePartModel.score_prepared_many(dets, prep) for prep in windows])
 
-    times: dict[str, list[float]] = {"per_model": [], "batched": []}
-    values = {}
-    for _ in range(args.repeats):  # alternate, so that a drift of the machine's speed hits both
-        for name, fn in (("per_model", per_model), ("batched", batched)):
-            c0 = time.process_time()
-            values[name] = fn()
-            times[name].append(time.process_time() - c0)
-    ms = {k: 1000 * statistics.median(v) / len(windows) for k, v in times.items()}
+    fns = {"per_model": per_model, "batched": batched}
+    ms, values = alternating_cpu_ms(fns, args.repeats, len(windows))
     diff = np.abs(values["batched"] - values["per_model"])
-    n_windows = len(rows)
+    n_windows = n_rows
     entry = {
-        "preset": args.preset,
-        "targets": len(dets),
-        "windows_sampled": len(windows),
-        "windows_in_table": n_windows,
-        "repeats": args.repeats,
+        **window_fields(args, dets, windows, n_rows),
         "cpu_ms_per_window_all_targets": {k: round(v, 2) for k, v in ms.items()},
         "speed_up": round(ms["per_model"] / ms["batched"], 2),
         "projected_table_cpu_s": {k: round(v * n_windows / 1000, 1) for k, v in ms.items()},
@@ -96,10 +63,7 @@ def main() -> None:
         "note": "CPU seconds of this process (time.process_time), BLAS single-threaded, one core; the "
         "HOG pyramids are prepared once beforehand and not counted (the table shares them too)",
     }
-    key = args.profile + (f"/{args.preset}" if args.preset else "")
-    run = {"profile": args.profile, "seed": args.seed, "preset": args.preset}
-    update_record(RESULTS, key, entry, run)
-    print(json.dumps(entry, indent=1))
+    record_windows(RESULTS, args, entry)
 
 
 if __name__ == "__main__":

@@ -26,10 +26,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-import json
-import statistics
-import time
 from pathlib import Path
 
 import numpy as np
@@ -63,31 +59,12 @@ def padded_ratio_test(query, model, valid, ratio, sq):
 
 
 def main() -> None:
-    from _record import update_record
+    from _record import alternating_cpu_ms, record_windows, sampled_windows, window_fields
 
-    from scrppl.cli._common import dataset_root
-    from scrppl.datasets import open_dataset
-    from scrppl.detectors.base import load_detector
     from scrppl.detectors.dpm._blas import single_threaded_blas
     from scrppl.detectors.sift import pack_model, ratio_test_matches
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("results", type=Path, help="a run folder with detectors/sift-*.npz")
-    ap.add_argument("--profile", default="full")
-    ap.add_argument("--preset", default=None)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--windows", type=int, default=200)
-    ap.add_argument("--repeats", type=int, default=3)
-    args = ap.parse_args()
-
-    ns = argparse.Namespace(profile=args.profile, seed=args.seed, root=None, preset=args.preset)
-    ds = open_dataset(dataset_root(ns), split_seed=args.seed)
-    dets = [load_detector(p) for p in sorted((args.results / "detectors").glob("sift-*.npz"))]
-    if not dets:
-        raise SystemExit(f"no SIFT detectors in {args.results / 'detectors'}")
-    rows = ds.select()
-    sample = rows.iloc[np.linspace(0, len(rows) - 1, min(args.windows, len(rows))).astype(int)]
-    windows = [dets[0].prepare(ds.load_image(r), ds.bbox(r)) for _, r in sample.iterrows()]
+    args, dets, windows, n_rows = sampled_windows(__doc__.splitlines()[0], "sift")
     models = [(det._descriptors, det._valid, float(det.hyperparameters["ratio"])) for det in dets]
     packs = [pack_model(m, v) for m, v, _ in models]
     norms = [padded_norms(m, v) for m, v, _ in models]
@@ -108,25 +85,15 @@ def main() -> None:
                 for (m, v, r), p in zip(models, packs, strict=True)
             ]
 
-    times: dict[str, list[float]] = {"padded": [], "packed": []}
-    values = {}
-    for _ in range(args.repeats):  # alternate, so that a drift of the machine's speed hits both
-        for name, fn in (("padded", padded), ("packed", packed)):
-            c0 = time.process_time()
-            values[name] = fn()
-            times[name].append(time.process_time() - c0)
-    ms = {k: 1000 * statistics.median(v) / len(windows) for k, v in times.items()}
+    fns = {"padded": padded, "packed": packed}
+    ms, values = alternating_cpu_ms(fns, args.repeats, len(windows))
     pairs = list(zip(values["padded"], values["packed"], strict=True))
     n_slots = sum(a.size for (a, _), _ in pairs)
     # a view with no descriptor has no nearest one: only views with descriptors are compared
     has = [v.any(1)[None, :] for _, v, _ in models] * len(windows)
-    n_windows = len(rows)
+    n_windows = n_rows
     entry = {
-        "preset": args.preset,
-        "targets": len(dets),
-        "windows_sampled": len(windows),
-        "windows_in_table": n_windows,
-        "repeats": args.repeats,
+        **window_fields(args, dets, windows, n_rows),
         "padding_share": round(1 - float(np.mean([v.mean() for _, v, _ in models])), 3),
         "cpu_ms_per_window_all_targets": {k: round(v, 2) for k, v in ms.items()},
         "speed_up": round(ms["padded"] / ms["packed"], 2),
@@ -140,10 +107,7 @@ def main() -> None:
         "SIFT features are extracted once beforehand and not counted (the table shares them too); "
         "both without the one-to-one step, which is the same code after either",
     }
-    key = args.profile + (f"/{args.preset}" if args.preset else "")
-    run = {"profile": args.profile, "seed": args.seed, "preset": args.preset}
-    update_record(RESULTS, key, entry, run)
-    print(json.dumps(entry, indent=1))
+    record_windows(RESULTS, args, entry)
 
 
 if __name__ == "__main__":
