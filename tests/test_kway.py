@@ -571,7 +571,6 @@ def test_class_metrics_and_confusion():
     assert np.isnan(conf.sel({"method": "m", "step": 1}).values[2]).all()
 
 
-@pytest.mark.slow  # about 30 s: make test-slow (CI)
 def separable_experiment(rng):
     """A table whose responses name the category outright, its trials and K-way and binary models."""
     k, n_i, a = 3, 4, 4
@@ -603,6 +602,7 @@ def separable_experiment(rng):
     return table, trials, model, binary, cats
 
 
+@pytest.mark.slow  # about 30 s: make test-slow (CI)
 def test_experiment_on_a_separable_table(rng):
     """Responses that name the category outright: every method is right after one view."""
     table, trials, model, binary, cats = separable_experiment(rng)
