@@ -276,7 +276,8 @@ def _fit_task(
 ) -> tuple[FittedPair, dict, pd.DataFrame | None]:
     """One cluster task of :func:`fit_study`: :func:`fit_pair` of pair ``j`` and its held-out scores.
 
-    Pair ``j`` is fitted with ``fold_in(key, j)`` and scored by :func:`_heldout_scores`. The key arrives as its raw data (``impl`` names a typed key's implementation), so that the task
+    Pair ``j`` is fitted with ``fold_in(key, j)`` and scored by :func:`_heldout_scores`. The key
+    arrives as its raw data (``impl`` names a typed key's implementation), so that the task
     reaches the worker without JAX (:mod:`scrppl.parallel` sets the worker's JAX flags first).
     """
     j, (det, tgt) = job

@@ -407,11 +407,10 @@ def run_study(
         },
         "targets": {},
     }
-    root = jax.random.key(seed)
     paper_sets, large_sets, summaries, examples = [], [], {}, {}
     t_start = time.perf_counter()
     for ti, target in enumerate(targets, start=target_offset):
-        k_trials, k_run, k_large, k_fig = jax.random.split(jax.random.fold_in(root, ti), 4)
+        k_trials, k_run, _, k_fig = _target_keys(seed, ti)
         log(f"[simulate] {target}: {trials} trials")
         methods, used = load_methods(
             k_trials, models_dir, table, detector, target, trials, kinds=kinds,
@@ -428,14 +427,10 @@ def run_study(
         examples[target] = example_trial(k_fig, next(iter(methods.values())), config)
         if large_trials > 0:
             log(f"[simulate] {target}: large experiment, {large_trials} trials")
-            large_methods, _ = load_methods(
-                k_large, models_dir, table, detector, target, large_trials, kinds=kinds,
-                max_draws=large_max_draws,
-            )  # fmt: skip
             t0 = time.perf_counter()
-            big = run_experiment(
-                k_run, large_methods, planners, category_names=names, progress=progress,
-                chunk_size=2048,
+            big = _large_experiment(
+                seed, ti, table, models_dir, detector, target, large_trials, kinds,
+                large_max_draws, planners, progress,
             )  # fmt: skip
             entry["large_experiment"] = headline(
                 big,
@@ -478,24 +473,39 @@ def _study_task(job: tuple[int, str, str | None], options: dict[str, Any]) -> An
     i, target, kind = job
     if kind is None:
         return run_study(**{**options, "targets": [target], "target_offset": i, "large_trials": 0})
-    table = options["table"]
-    planners = study_planners(options["config"])
-    _, k_run, k_large, _ = jax.random.split(
-        jax.random.fold_in(jax.random.key(options["seed"]), i), 4
-    )
+    t0 = time.perf_counter()
     try:
-        methods, _ = load_methods(
-            k_large, options["models_dir"], table, options["detector"], target,
-            options["large_trials"], kinds=(kind,), max_draws=options["large_max_draws"],
+        big = _large_experiment(
+            options["seed"], i, options["table"], options["models_dir"], options["detector"], target,
+            options["large_trials"], (kind,), options["large_max_draws"],
+            study_planners(options["config"]),
         )  # fmt: skip
     except FileNotFoundError:
         return None  # as run_study skips a kind with no saved model
-    t0 = time.perf_counter()
-    big = run_experiment(
-        k_run, methods, planners, category_names=table["category"].values.tolist(),
-        chunk_size=2048,
-    )  # fmt: skip
     return big, time.perf_counter() - t0
+
+
+def _target_keys(seed: int, i: int) -> list:
+    """Target number ``i``'s keys: its paper trials, its runs, its large experiment's trials, Fig. 4."""
+    return list(jax.random.split(jax.random.fold_in(jax.random.key(seed), i), 4))
+
+
+def _large_experiment(
+    seed, i, table, models_dir, detector, target, n_trials, kinds, max_draws, planners,
+    progress=False,
+) -> xr.Dataset:  # fmt: skip
+    """Target number ``i``'s large experiment with the methods of ``kinds``, in process or in a task.
+
+    Raises ``FileNotFoundError`` when no kind has a saved model (:func:`load_methods`).
+    """
+    _, k_run, k_large, _ = _target_keys(seed, i)
+    methods, _ = load_methods(
+        k_large, models_dir, table, detector, target, n_trials, kinds=kinds, max_draws=max_draws
+    )
+    return run_experiment(
+        k_run, methods, planners, category_names=table["category"].values.tolist(),
+        progress=progress, chunk_size=2048,
+    )  # fmt: skip
 
 
 def _run_study_per_target(ex: Executor, params: dict[str, Any]) -> Study:
