@@ -6,7 +6,13 @@ detectors of one family, and the robot plans where to look to tell the categorie
 
 * :mod:`scrppl.kway.models` -- each target detector's response given the true category, read K-way from
   the hierarchical fits (:class:`KwayModel`, a stack of ``ResponseModel`` with ``O = K``);
-* :mod:`scrppl.kway.filter` -- the exact filters over ``(k, theta)``: naive Bayes and instance-aware;
+* :mod:`scrppl.kway.filter` -- the exact filters over ``(k, theta)``: naive Bayes, instance-aware and
+  correlated;
+* :mod:`scrppl.kway.correlation` -- the detectors of a family score the same image, so their responses
+  are correlated given the state: a NumPyro model of the two correlation matrices (view noise, instance
+  effects) fitted by NUTS, the correlated filter (a ``T``-dimensional Kalman filter of the instance
+  effects) and its entropy planners; in the paper regime it turns K-way recognition from less accurate
+  than one-vs-rest to more accurate after every number of views (not yet the pipeline's K-way model);
 * :mod:`scrppl.kway.planning` -- sampled expected entropy of a vector observation, exact or with the
   collapsed (moment-matched) posterior update, random baseline;
 * ``scrppl.kway.profiles`` -- a per-category model (every non-target category its own viewpoint profile,

@@ -236,7 +236,9 @@ def _trial(
         out = (view, found, KF.class_marginal(belief), p_ovr)
         return (belief, bb, visited, view), out
 
-    bb0 = jax.vmap(lambda m: B.init_belief(filter, m))(binary) if ovr else None
+    # one-vs-rest runs the binary filters; they have no cross-detector correlation to model
+    binary_filter = "instance" if filter == "correlated" else filter
+    bb0 = jax.vmap(lambda m: B.init_belief(binary_filter, m))(binary) if ovr else None
     if log_weight is None:
         belief0 = KF.init_belief(filter, model)
     else:
@@ -390,7 +392,9 @@ def run_kway_experiment(
         The ``T`` binary viewpoint models stacked (arrays with a leading target axis, ``mu (T, N, 2, A, E,
         S)``), for ``one_vs_rest``; omitted: that method is left out.
     filter
-        ``"instance"`` or ``"naive_bayes"`` (used by every method).
+        ``"instance"`` or ``"naive_bayes"`` (used by every method), or ``"correlated"`` (a
+        :class:`~scrppl.kway.correlation.CorrelatedKwayModel`; one-vs-rest then runs the instance-aware
+        binary filters).
     config
         :class:`~scrppl.planning.PlannerConfig` of the entropy planner (its ``planner`` is ignored:
         ``planning`` uses ``planner``, the baselines ``"random"``).

@@ -39,6 +39,7 @@ from jax.scipy.special import logsumexp
 
 from scrppl._checks import is_concrete
 from scrppl.belief import entropy
+from scrppl.kway import correlation as CB
 from scrppl.kway.models import KwayModel, check_kway_model
 from scrppl.models.response import normal_log_density
 from scrppl.views import check_view_indices
@@ -64,8 +65,9 @@ __all__ = [
     "check_kway_belief",
 ]
 
-#: Filter names accepted by :func:`init_belief`.
-FILTERS = ("naive_bayes", "instance")
+#: Filter names accepted by :func:`init_belief` (``"correlated"``: the instance-aware filter with responses
+#: correlated across detectors, :mod:`scrppl.kway.correlation`; it needs a ``CorrelatedKwayModel``).
+FILTERS = ("naive_bayes", "instance", "correlated")
 
 
 class KwayNaiveBayesBelief(NamedTuple):
@@ -137,6 +139,9 @@ def check_kway_belief(model: KwayModel, belief) -> None:
     t, n, k, a = model.mu.shape[:4]
     if isinstance(belief, KwayNaiveBayesBelief):
         want = {"log_belief": (k, a)}
+    elif isinstance(belief, CB.CorrelatedBelief):
+        want = {"log_prior": (k, a), "b_mean": (n, k, a, t), "b_cov": (n, k, a, t, t)}
+        want["log_evidence"] = (n, k, a)
     elif isinstance(belief, KwayInstanceBelief):
         want = dict.fromkeys(("u_mean", "u_var", "log_evidence"), (t, n, k, a))
         want["log_prior"] = (k, a)
@@ -207,6 +212,8 @@ def init_belief(kind: str, model: KwayModel, prior=None):
     log_prior = _log_prior(prior, (k, a))
     if kind == "naive_bayes":
         return KwayNaiveBayesBelief(log_prior)
+    if kind == "correlated":
+        return CB.init_belief(model, prior)
     if kind == "instance":
         var = jnp.broadcast_to((jnp.asarray(model.tau) ** 2)[..., None], (t, n, k, a))
         zeros = jnp.zeros((t, n, k, a), model.mu.dtype)
@@ -232,6 +239,8 @@ def update(model: KwayModel, belief, f, phi, e=0, s=0):
     check_kway_belief(model, belief)
     _check_view(model, phi, e, s)
     f = _responses(model, f)
+    if isinstance(belief, CB.CorrelatedBelief):
+        return CB.update(model, belief, f, phi, e, s)
     if isinstance(belief, KwayNaiveBayesBelief):
         logp = belief.log_belief + naive_bayes_log_likelihood(model, f, phi, e, s)
         return KwayNaiveBayesBelief(logp - logsumexp(logp))
@@ -248,6 +257,8 @@ def joint_log_belief(belief) -> jax.Array:
     """Normalised ``log p(k, theta | F)``, ``(K, A)``, for either belief."""
     if isinstance(belief, KwayNaiveBayesBelief):
         return belief.log_belief
+    if isinstance(belief, CB.CorrelatedBelief):
+        return CB.joint_log_belief(belief)
     if isinstance(belief, KwayInstanceBelief):
         n = belief.log_evidence.shape[1]
         per_target = logsumexp(belief.log_evidence, axis=1) - math.log(n)  # (T, K, A)
@@ -300,6 +311,11 @@ def predictive_mixture(model: KwayModel, belief, phi, e=0, s=0) -> VectorMixture
     """
     check_kway_model(model)
     check_kway_belief(model, belief)
+    if isinstance(belief, CB.CorrelatedBelief):
+        raise ValueError(
+            "the correlated filter's predictive is not a product over targets: use "
+            "scrppl.kway.correlation.predictive (the planners do)"
+        )
     _check_view(model, phi, e, s)
     mu, sigma2, tau2 = view_parameters(model, phi, e, s)
     if isinstance(belief, KwayNaiveBayesBelief):

@@ -76,6 +76,7 @@ import jax
 import jax.numpy as jnp
 
 from scrppl.belief import OBJECTIVES
+from scrppl.kway import correlation as CR
 from scrppl.kway.filter import (
     VectorMixture,
     check_kway_belief,
@@ -366,6 +367,8 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
     ``planner="collapsed"`` scores the same response vectors with the moment-matched update; the draw
     weights are one array for every candidate (the belief's), so their exponentials are taken once.
     """
+    if isinstance(belief, CR.CorrelatedBelief):
+        return CR._expected_entropies(key, model, belief, views, n_samples, objective, planner)
     mixtures = candidate_mixtures(model, belief, views)
     first = jax.tree.map(lambda x: x[0], mixtures)
     comps = _components(key, first.log_state, first.log_draw, n_samples)

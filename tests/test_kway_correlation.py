@@ -1,0 +1,318 @@
+"""Responses correlated across target detectors (scrppl.kway.correlation): the ring marginal against the
+dense Gaussian, the correlated filter against the instance-aware one (identity correlations) and against
+the dense joint of all views (any correlations), the fit against correlations it was given, and the errors.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+from scipy.special import logsumexp
+
+from scrppl.kway import correlation as CR
+from scrppl.kway import filter as KF
+from scrppl.kway import planning as KP
+from scrppl.kway.experiment import run_kway_experiment
+from scrppl.kway.models import KwayModel
+from scrppl.planning import PlannerConfig
+
+
+def random_corr(rng, t, strength=0.6):
+    x = rng.normal(size=(t, t + 2))
+    c = x @ x.T
+    d = np.sqrt(np.diag(c))
+    c = c / d[:, None] / d[None, :]
+    return (1 - strength) * np.eye(t) + strength * c
+
+
+def random_kway(rng, t=3, n=2, k=3, a=4):
+    mu = rng.normal(0.0, 1.5, size=(t, n, k, a, 1, 1))
+    sigma = rng.uniform(0.5, 1.2, size=(t, n, k, a, 1, 1))
+    tau = rng.uniform(0.3, 0.8, size=(t, n, k))
+    return KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau))), (mu, sigma, tau)
+
+
+def test_ring_marginal_is_the_dense_gaussian(rng):
+    t = 4
+    ce, cu = random_corr(rng, t), random_corr(rng, t)
+    parts, dense = [], []
+    for v in (1, 3, 8):
+        r = rng.normal(0, 1.5, size=(v, t))
+        s = rng.uniform(0.4, 1.5, size=(v, t))
+        tau = rng.uniform(0.2, 1.0, size=t)
+        parts.append(CR._stats_one(r, s, tau))
+        dense.append(CR.dense_ring_log_marginal(r, s, tau, ce, cu))
+    got = CR.ring_log_marginal(
+        jnp.linalg.cholesky(jnp.asarray(ce)),
+        jnp.linalg.cholesky(jnp.asarray(cu)),
+        CR._stack_stats(parts),
+    )
+    np.testing.assert_allclose(np.asarray(got), dense, rtol=1e-6)  # float32
+
+
+def run_filter(model, kind, f, phi):
+    belief = KF.init_belief(kind, model)
+    for fj, pj in zip(f, phi, strict=True):
+        belief = KF.update(model, belief, jnp.asarray(fj), int(pj))
+    return belief
+
+
+def test_identity_correlations_give_the_instance_filter(rng):
+    # one draw: the same filter number for number
+    model, _ = random_kway(rng, n=1)
+    t = model.mu.shape[0]
+    f, phi = rng.normal(0, 2, size=(5, t)), rng.integers(0, 4, size=5)
+    plain = run_filter(model, "instance", f, phi)
+    corr = run_filter(CR.with_correlations(model, np.eye(t), np.eye(t)), "correlated", f, phi)
+    np.testing.assert_allclose(
+        np.asarray(KF.joint_log_belief(corr)), np.asarray(KF.joint_log_belief(plain)), atol=1e-5
+    )
+    # several draws: draw n's evidence is the sum of the targets' draw-n evidences (the independent
+    # filter then averages each target over its draws, the correlated one the draws' products)
+    model, _ = random_kway(rng, n=3)
+    plain = run_filter(model, "instance", f, phi)
+    corr = run_filter(CR.with_correlations(model, np.eye(t), np.eye(t)), "correlated", f, phi)
+    np.testing.assert_allclose(
+        np.asarray(corr.log_evidence), np.asarray(plain.log_evidence.sum(0)), atol=1e-4
+    )
+
+
+def test_correlated_filter_is_the_dense_joint_of_all_views(rng):
+    model, (mu, sigma, tau) = random_kway(rng)
+    t, n, k, a = mu.shape[:4]
+    ce = np.stack([random_corr(rng, t) for _ in range(n)])
+    cu = np.stack([random_corr(rng, t) for _ in range(n)])
+    f, phi = rng.normal(0, 2, size=(4, t)), rng.integers(0, a, size=4)
+    belief = run_filter(CR.with_correlations(model, ce, cu), "correlated", f, phi)
+    want = np.zeros((n, k, a))
+    for d in range(n):
+        for c in range(k):
+            for theta in range(a):
+                rel = (phi - theta) % a
+                r = f - mu[:, d, c, rel, 0, 0].T
+                s = sigma[:, d, c, rel, 0, 0].T
+                want[d, c, theta] = CR.dense_ring_log_marginal(r, s, tau[:, d, c], ce[d], cu[d])
+    np.testing.assert_allclose(np.asarray(belief.log_evidence), want, rtol=1e-5)
+    post = logsumexp(want, axis=0)
+    np.testing.assert_allclose(
+        np.asarray(KF.joint_log_belief(belief)), post - logsumexp(post), atol=1e-4
+    )
+    # the instance mean is the conditional mean of b given the views (the last state checked densely)
+    rel = (phi - (a - 1)) % a
+    r = (f - mu[:, -1, -1, rel, 0, 0].T).ravel()
+    s = sigma[:, -1, -1, rel, 0, 0].T
+    p = np.outer(tau[:, -1, -1], tau[:, -1, -1]) * cu[-1]
+    cov = np.kron(np.ones((4, 4)), p)
+    for j in range(4):
+        cov[j * t : (j + 1) * t, j * t : (j + 1) * t] += np.outer(s[j], s[j]) * ce[-1]
+    cross = np.kron(np.ones((1, 4)), p)  # Cov(b, r)
+    np.testing.assert_allclose(
+        np.asarray(belief.b_mean[-1, -1, -1]), cross @ np.linalg.solve(cov, r), atol=1e-4
+    )
+
+
+def simulate_rings(rng, ce, cu, units, views):
+    t = len(ce)
+    parts = []
+    lc, lu = np.linalg.cholesky(ce), np.linalg.cholesky(cu)
+    for _ in range(units):
+        s = rng.uniform(0.5, 1.5, size=(views, t))
+        tau = rng.uniform(0.5, 1.0, size=t)
+        b = tau * (lu @ rng.normal(size=t))
+        r = b + s * (rng.normal(size=(views, t)) @ lc.T)
+        parts.append(CR._stats_one(r, s, tau))
+    return CR._stack_stats(parts)
+
+
+def test_fit_recovers_the_correlations_it_was_given(rng):
+    from scrppl.models.mcmc import SamplerConfig
+
+    ce = np.array([[1.0, 0.6, 0.3], [0.6, 1.0, 0.0], [0.3, 0.0, 1.0]])
+    cu = np.array([[1.0, -0.5, 0.0], [-0.5, 1.0, 0.4], [0.0, 0.4, 1.0]])
+    st = simulate_rings(rng, ce, cu, units=200, views=8)
+    tree = CR.fit_correlations(
+        jax.random.key(0), st, SamplerConfig(num_warmup=250, num_samples=250)
+    )
+    diag = tree.attrs["diagnostics"]
+    assert '"ok": true' in diag, diag
+    post = tree["posterior"].to_dataset()
+    iu = np.triu_indices(3, 1)
+    view = post["view_rho"].values.reshape(-1, 3)
+    inst = post["instance_rho"].values.reshape(-1, 3)
+    # the truth inside the central 99 % posterior interval of every element
+    for draws, truth in ((view, ce[iu]), (inst, cu[iu])):
+        lo, hi = np.quantile(draws, [0.005, 0.995], axis=0)
+        assert np.all((lo < truth) & (truth < hi)), (lo, truth, hi)
+    # the view correlation, seen in 1,600 views, is learnt far more tightly than the instance one
+    assert view.std(0).max() < inst.std(0).min()
+    vc, ic = CR.correlations_from_fit(tree, 4)
+    assert vc.shape == ic.shape == (4, 3, 3)
+    np.testing.assert_allclose(np.diagonal(vc, axis1=1, axis2=2), 1.0, atol=1e-12)
+
+
+def test_ring_stats_and_moments_on_a_table(rng):
+    """ring_stats on a small table: one unit per complete ring of a fit instance, residuals from the
+    model's posterior mean; a ring with a missing response is left out."""
+    from scrppl.responses import empty_response_table
+    from scrppl.views import ViewGrid
+
+    k, n_i, a = 3, 3, 4
+    cats = ["x", "y", "z"]
+    split = np.array([["fit", "fit", "test"]] * k)
+    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
+    table["score"].values[:] = rng.normal(size=table["score"].shape)
+    table["score"].values[0, 1, 2, 0, 3, 0, 0] = np.nan  # detector y on z/0: one ring incomplete
+    model, (mu, sigma, tau) = random_kway(rng, t=3, n=2, k=3, a=a)
+    st = CR.ring_stats(model, table, "d", cats)
+    assert st.w_outer.shape == (5, 3, 3)  # 6 fit rings, one incomplete
+    y = table["score"].values[0, :, 0, 0, :, 0, 0]  # (T, A) of x/0
+    r = (y - mu[:, :, 0, :, 0, 0].mean(1)).T
+    s = np.sqrt((sigma[:, :, 0, :, 0, 0] ** 2).mean(1)).T
+    np.testing.assert_allclose(np.asarray(st.w_outer[0]), (r / s).T @ (r / s), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(st.n_views), 4)
+    mom = CR.residual_correlations(model, table, "d", cats)
+    assert mom["units"] == 5 and mom["view"].shape == (3, 3)
+    with pytest.raises(ValueError, match="categories"):
+        CR.ring_stats(model, table, "d", ["y", "x", "z"])
+
+
+def test_errors_name_the_problem(rng):
+    model, _ = random_kway(rng)
+    t = model.mu.shape[0]
+    with pytest.raises(ValueError, match="unit diagonal"):
+        CR.with_correlations(model, 2 * np.eye(t), np.eye(t))
+    with pytest.raises(ValueError, match="positive definite"):
+        CR.with_correlations(model, np.ones((t, t)), np.eye(t))
+    with pytest.raises(ValueError, match="not symmetric"):
+        bad = np.eye(t)
+        bad[0, 1] = 0.5
+        CR.with_correlations(model, np.eye(t), bad)
+    with pytest.raises(ValueError, match=r"\(N, T, T\)"):
+        CR.with_correlations(model, np.eye(t + 1), np.eye(t + 1))
+    with pytest.raises(ValueError, match="CorrelatedKwayModel"):
+        KF.init_belief("correlated", model)
+    corr = CR.with_correlations(model, np.eye(t), np.eye(t))
+    belief = KF.init_belief("correlated", corr)
+    with pytest.raises(ValueError, match="not a product over targets"):
+        KF.predictive_mixture(corr, belief, 0)
+    with pytest.raises(ValueError, match="not all finite"):
+        KF.update(corr, belief, jnp.full(t, jnp.nan), 0)
+
+
+def test_experiment_with_the_correlated_filter(rng):
+    """The experiment with the correlated filter: with identity correlations (and one draw) its trials
+    are those of the instance-aware filter, random and planned views alike."""
+    from tests.test_kway import separable_experiment
+
+    table, trials, model, binary, cats = separable_experiment(rng)
+    corr = CR.with_correlations(model, np.eye(3), np.eye(3))
+    opts = dict(binary=binary, categories=cats, planned=False)
+    got = run_kway_experiment(jax.random.key(1), corr, trials, filter="correlated", **opts)
+    want = run_kway_experiment(jax.random.key(1), model, trials, filter="instance", **opts)
+    for v in ("correct", "azimuth", "views_to_confidence"):
+        np.testing.assert_array_equal(got[v].values, want[v].values)
+    np.testing.assert_allclose(got["p_true"].values, want["p_true"].values, atol=1e-5)
+    # planned views: every trial visits distinct views and is right from its first view, as the
+    # independent filter's are on this table
+    got = run_kway_experiment(jax.random.key(1), corr, trials, filter="correlated", binary=binary)
+    az = got["azimuth"].sel({"method": "planning"}).values
+    assert all(len(set(row)) == len(row) for row in az)
+    assert got["correct"].sel({"method": "planning"}).values.all()
+
+
+def test_correlation_lowers_the_evidence_of_one_unusual_view():
+    """Two detectors that move together: a view where both answer high is one piece of evidence, not
+    two. The independent filter's log likelihood ratio is larger than the correlated one's by the
+    closed-form amount."""
+    rho = 0.8
+    mu = np.zeros((2, 1, 2, 1, 1, 1))
+    mu[:, 0, 1] = 1.0  # category 1 raises both detectors' mean
+    sigma = np.ones_like(mu)
+    tau = np.full((2, 1, 2), 1e-6)
+    model = KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    ce = np.array([[1.0, rho], [rho, 1.0]])
+    f = jnp.asarray([1.0, 1.0])
+    indep = KF.update(model, KF.init_belief("instance", model), f, 0)
+    corr_model = CR.with_correlations(model, ce, np.eye(2))
+    corr = KF.update(corr_model, KF.init_belief("correlated", corr_model), f, 0)
+    lr_indep = float(np.diff(np.asarray(KF.joint_log_belief(indep))[:, 0])[0])
+    lr_corr = float(np.diff(np.asarray(KF.joint_log_belief(corr))[:, 0])[0])
+    cov = ce
+    closed = stats.multivariate_normal(np.ones(2), cov).logpdf([1, 1]) - stats.multivariate_normal(
+        np.zeros(2), cov
+    ).logpdf([1, 1])
+    assert lr_indep == pytest.approx(1.0, rel=1e-5)  # two detectors, 1/2 nat each
+    assert lr_corr == pytest.approx(closed, rel=1e-5)
+    assert lr_corr == pytest.approx(lr_indep / (1 + rho), rel=1e-5)
+
+
+def test_planner_with_identity_correlations_is_the_independent_planner(rng):
+    """Same model, other random numbers (the correlated planner draws the instance effect and the view
+    noise separately): the expected entropies agree within Monte Carlo error."""
+    model, _ = random_kway(rng, n=1)
+    t, a = model.mu.shape[0], model.mu.shape[3]
+    f, phi = rng.normal(0, 2, size=(2, t)), rng.integers(0, a, size=2)
+    views = np.array([[v, 0, 0] for v in range(a)])
+    corr = CR.with_correlations(model, np.eye(t), np.eye(t))
+    bi, bc = run_filter(model, "instance", f, phi), run_filter(corr, "correlated", f, phi)
+    for planner in ("sampled", "collapsed"):
+        cfg = PlannerConfig(planner=planner, objective="class", n_samples=8192)
+        want = KP.expected_entropies(jax.random.key(3), model, bi, views, cfg)
+        got = KP.expected_entropies(jax.random.key(4), corr, bc, views, cfg)
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=0.02)
+    # the scoring itself is the independent planner's, sample for sample
+    fs = jnp.asarray(rng.normal(0, 2, size=(16, t)), jnp.float32)
+    mix = KF.predictive_mixture(model, bi, 1)
+    cmix = CR.predictive(corr, bc, 1)
+    got, want = np.asarray(CR._log_joint(cmix, fs, "sampled")), np.asarray(KP._log_joint(mix, fs))
+    norm = lambda x: x - logsumexp(x, axis=-1, keepdims=True)  # noqa: E731 (the 2 pi is dropped there)
+    np.testing.assert_allclose(norm(got), norm(want), atol=2e-4)
+
+
+def test_planner_matches_monte_carlo_through_the_filter(rng):
+    """Expected class entropy of one candidate: the planner (exact mixture, many samples) against
+    responses drawn from the dense predictive and fused by the filter itself."""
+    model, (mu, sigma, tau) = random_kway(rng, t=2, n=2, k=2, a=3)
+    t, n, k, a = mu.shape[:4]
+    ce = np.stack([random_corr(rng, t) for _ in range(n)])
+    cu = np.stack([random_corr(rng, t) for _ in range(n)])
+    corr = CR.with_correlations(model, ce, cu)
+    f0 = rng.normal(0, 2, size=(1, t))
+    belief = run_filter(corr, "correlated", f0, [0])
+    cfg = PlannerConfig(planner="sampled", objective="class", n_samples=20000)
+    got = float(
+        KP.expected_entropies(jax.random.key(0), corr, belief, np.array([[1, 0, 0]]), cfg)[0]
+    )
+    # reference: state and draw from the posterior, f from the dense conditional Gaussian, then update
+    mix = CR.predictive(corr, belief, 1)
+    p_state = np.exp(np.asarray(mix.log_state)).ravel()
+    p_draw = np.exp(np.asarray(mix.log_draw)).reshape(n, -1)
+    m = np.asarray(mix.mean, np.float64).reshape(n, -1, t)
+    c = np.asarray(mix.cov, np.float64).reshape(n, -1, t, t)
+    step = jax.jit(lambda x: KF.class_entropy(KF.update(corr, belief, x, 1)))
+    h = []
+    for _ in range(3000):
+        st = rng.choice(k * a, p=p_state / p_state.sum())
+        d = rng.choice(n, p=p_draw[:, st] / p_draw[:, st].sum())
+        x = rng.multivariate_normal(m[d, st], c[d, st])
+        h.append(float(step(jnp.asarray(x, jnp.float32))))
+    se = np.std(h) / np.sqrt(len(h))
+    assert abs(got - np.mean(h)) < 4 * se + 2e-3, (got, np.mean(h), se)
+
+
+def test_collapsed_planner_is_the_exact_one_with_one_draw(rng):
+    model, _ = random_kway(rng, t=3, n=1)
+    t = model.mu.shape[0]
+    corr = CR.with_correlations(model, random_corr(rng, t), random_corr(rng, t))
+    belief = run_filter(corr, "correlated", rng.normal(0, 2, size=(2, t)), [0, 2])
+    views = np.array([[1, 0, 0], [3, 0, 0]])
+    got = {
+        p: np.asarray(
+            KP.expected_entropies(
+                jax.random.key(5), corr, belief, views, PlannerConfig(planner=p, n_samples=128)
+            )
+        )
+        for p in ("sampled", "collapsed")
+    }
+    np.testing.assert_allclose(got["collapsed"], got["sampled"], atol=1e-5)
