@@ -46,6 +46,50 @@ def _cpu() -> str:
     return platform.processor() or platform.machine()
 
 
+def _timing(model, corr, table, det, repeats: int = 30) -> dict:
+    """Median milliseconds of one collapsed planning decision and of one filter update, both filters.
+
+    After one view of a held-out object; every other azimuth of its ring a candidate, ``M = 256``. Timed
+    on the cores this process may use (``taskset -c 0`` for one core).
+    """
+    import jax.numpy as jnp
+
+    from scrppl.kway import filter as KF
+    from scrppl.kway import planning as KP
+    from scrppl.kway.experiment import make_kway_trials
+
+    tr = make_kway_trials(jax.random.key(7), table, det, 1)
+    f = tr.responses[0]  # (T, A, E, S)
+    n_a = model.mu.shape[3]
+    views = jnp.asarray([[v, 0, 0] for v in range(1, n_a)])
+    import os
+
+    out = {
+        "candidates": n_a - 1,
+        "samples_M": 256,
+        "draws": int(model.mu.shape[1]),
+        "cores_used": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+    }
+    for name, m, kind in (("independent", model, "instance"), ("correlated", corr, "correlated")):
+        b = KF.update(m, KF.init_belief(kind, m), f[:, 0, 0, 0], 0)
+        decide = jax.jit(
+            lambda k, b, m=m: KP._expected_entropies(k, m, b, views, 256, "class", "collapsed")
+        )
+        upd = jax.jit(lambda b, x, m=m: KF.update(m, b, x, 1))
+        for label, fn, args in (
+            ("decision_ms", decide, lambda i, b=b: (jax.random.key(i), b)),
+            ("update_ms", upd, lambda i, b=b: (b, f[:, 1, 0, 0])),
+        ):
+            jax.block_until_ready(fn(*args(0)))
+            times = []
+            for i in range(repeats):
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(*args(i)))
+                times.append(1000 * (time.perf_counter() - t0))
+            out[f"{name}_{label}"] = round(float(np.median(times)), 3)
+    return out
+
+
 def main() -> None:
     from scrppl.kway import correlation as CR
     from scrppl.kway.experiment import (
@@ -65,6 +109,14 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=8, help="posterior draws per target detector")
     ap.add_argument("--detector", default="dpm")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--planned", action="store_true", help="also planned views (the collapsed entropy planner)"
+    )
+    ap.add_argument(
+        "--only-timing",
+        action="store_true",
+        help="only time one decision and one filter update (added to the record)",
+    )
     args = ap.parse_args()
 
     table = xr.load_dataset(args.results / "responses.nc")
@@ -101,7 +153,7 @@ def main() -> None:
     diag = json.loads(tree.attrs["diagnostics"])
 
     # held-out rings: joint LPD with the fitted correlations against independent detectors
-    test = CR.ring_stats(plug, table, det, cats, split="test")
+    test = CR.ring_stats(plug, table, det, cats, split="test", unit="ring")
     vc64, ic64 = CR.correlations_from_fit(tree, 64)
     eye = np.broadcast_to(np.eye(len(cats)), vc64.shape)
     lpd_corr = CR.heldout_ring_lpd(vc64, ic64, test)
@@ -111,9 +163,18 @@ def main() -> None:
     model = kway_from_fits(models, det, cats, n_draws=args.draws).model
     vc, ic = CR.correlations_from_fit(tree, args.draws)
     corr = CR.with_correlations(model, vc, ic)
+    timing = _timing(model, corr, table, det)
+    print("timing", json.dumps(timing))
+    if args.only_timing:
+        record = json.loads(RESULTS.read_text())
+        record[str(run.get("profile", "unknown"))]["timing"] = timing
+        RESULTS.write_text(json.dumps(record, indent=1) + "\n")
+        print(f"wrote {RESULTS}")
+        return
     binary = _binary_models(models, det, cats, args.draws)
     trials = make_kway_trials(jax.random.key(args.seed + 1), table, det, args.trials)
     out = {
+        "timing": timing,
         "profile": run.get("profile"),
         "detector": det,
         "trials": args.trials,
@@ -121,7 +182,7 @@ def main() -> None:
         "seed": args.seed,
         "machine": {"cores": os.cpu_count(), "cpu": _cpu(), "machine": platform.machine()},
         "command": "python benchmarks/bench_kway_correlated.py RESULTS --trials "
-        f"{args.trials} --draws {args.draws}",
+        f"{args.trials} --draws {args.draws}" + (" --planned" if args.planned else ""),
         "residual_correlation_moments_fit_split": {
             "view_mean_off_diagonal": round(float(mom["view"][iu].mean()), 3),
             "ring_mean_mean_off_diagonal": round(float(mom["instance"][iu].mean()), 3),
@@ -167,7 +228,7 @@ def main() -> None:
             categories=cats,
             filter=kind,
             keep_probabilities=True,
-            planned=False,
+            planned=args.planned,
         )
         seconds = round(time.perf_counter() - t0, 1)
         s = summarise_kway(ds)
@@ -186,6 +247,10 @@ def main() -> None:
         methods = [str(x) for x in ds["method"].values]
         out[name] = {
             "filter": kind,
+            "views_to_confidence": {
+                m_: round(float(ds["views_to_confidence"].sel({"method": m_}).mean()), 3)
+                for m_ in methods
+            },
             "seconds": seconds,
             "accuracy": {
                 m_: [round(float(s["accuracy"].sel({"method": m_, "step": k})), 4) for k in STEPS]
@@ -194,6 +259,16 @@ def main() -> None:
             "random_minus_one_vs_rest": {
                 str(k): [round(d[q][k - 1], 4) for q in ("mean", "lo", "hi")] for k in STEPS
             },
+            "planning_minus_random_views_to_confidence": (
+                {
+                    q: round(float(v), 4)
+                    for q, v in compare_kway(ds, "planning", "random")[
+                        "views_to_confidence"
+                    ].items()
+                }
+                if args.planned
+                else None
+            ),
             "ece_top_after_1_2_4": {
                 m_: [round(float(x), 4) for x in cal["ece_top"].sel({"method": m_}).values]
                 for m_ in methods

@@ -114,15 +114,12 @@ def test_correlated_filter_is_the_dense_joint_of_all_views(rng):
 
 def simulate_rings(rng, ce, cu, units, views):
     t = len(ce)
-    parts = []
     lc, lu = np.linalg.cholesky(ce), np.linalg.cholesky(cu)
-    for _ in range(units):
-        s = rng.uniform(0.5, 1.5, size=(views, t))
-        tau = rng.uniform(0.5, 1.0, size=t)
-        b = tau * (lu @ rng.normal(size=t))
-        r = b + s * (rng.normal(size=(views, t)) @ lc.T)
-        parts.append(CR._stats_one(r, s, tau))
-    return CR._stack_stats(parts)
+    s = rng.uniform(0.5, 1.5, size=(units, views, t))
+    tau = rng.uniform(0.5, 1.0, size=(units, t))
+    b = tau * (rng.normal(size=(units, t)) @ lu.T)
+    r = b[:, None] + s * (rng.normal(size=(units, views, t)) @ lc.T)
+    return CR.unit_stats(r, s, tau)
 
 
 def test_fit_recovers_the_correlations_it_was_given(rng):
@@ -153,28 +150,49 @@ def test_fit_recovers_the_correlations_it_was_given(rng):
 
 def test_ring_stats_and_moments_on_a_table(rng):
     """ring_stats on a small table: one unit per complete ring of a fit instance, residuals from the
-    model's posterior mean; a ring with a missing response is left out."""
+    model's posterior mean; a ring with a missing response is left out; an instance's unit is the sum of
+    its rings' (every statistic is a sum over views)."""
     from scrppl.responses import empty_response_table
     from scrppl.views import ViewGrid
 
     k, n_i, a = 3, 3, 4
     cats = ["x", "y", "z"]
     split = np.array([["fit", "fit", "test"]] * k)
-    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
+    grid = ViewGrid(a, (10.0, 30.0), (1.0,))
+    table = empty_response_table(["d"], cats, cats, n_i, grid, split)
     table["score"].values[:] = rng.normal(size=table["score"].shape)
-    table["score"].values[0, 1, 2, 0, 3, 0, 0] = np.nan  # detector y on z/0: one ring incomplete
-    model, (mu, sigma, tau) = random_kway(rng, t=3, n=2, k=3, a=a)
-    st = CR.ring_stats(model, table, "d", cats)
-    assert st.w_outer.shape == (5, 3, 3)  # 6 fit rings, one incomplete
-    y = table["score"].values[0, :, 0, 0, :, 0, 0]  # (T, A) of x/0
+    table["score"].values[0, 1, 2, 0, 3, 1, 0] = (
+        np.nan
+    )  # detector y on z/0: its second ring incomplete
+    mu = rng.normal(0.0, 1.5, size=(3, 2, 3, a, 2, 1))
+    sigma = rng.uniform(0.5, 1.2, size=mu.shape)
+    tau = rng.uniform(0.3, 0.8, size=(3, 2, 3))
+    model = KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    rings = CR.ring_stats(model, table, "d", cats, unit="ring")
+    assert rings.w_outer.shape == (11, 3, 3)  # 6 fit instances x 2 rings, one incomplete
+    y = table["score"].values[0, :, 0, 0, :, 0, 0]  # (T, A) of x/0, first ring
     r = (y - mu[:, :, 0, :, 0, 0].mean(1)).T
-    s = np.sqrt((sigma[:, :, 0, :, 0, 0] ** 2).mean(1)).T
-    np.testing.assert_allclose(np.asarray(st.w_outer[0]), (r / s).T @ (r / s), rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(st.n_views), 4)
+    sd = np.sqrt((sigma[:, :, 0, :, 0, 0] ** 2).mean(1)).T
+    np.testing.assert_allclose(np.asarray(rings.w_outer[0]), (r / sd).T @ (r / sd), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(rings.n_views), 4)
+    inst = CR.ring_stats(model, table, "d", cats)  # one unit per instance, the default
+    assert inst.w_outer.shape == (6, 3, 3)
+    np.testing.assert_allclose(np.asarray(inst.n_views), [8, 8, 8, 8, 4, 8])  # z/0: one ring
+    for field in ("w_outer", "inv_s_outer", "w_over_s", "n_views", "sum_log_s"):
+        got, per_ring = np.asarray(getattr(inst, field)), np.asarray(getattr(rings, field))
+        np.testing.assert_allclose(got[:4], per_ring[0:8:2] + per_ring[1:8:2], rtol=1e-5)
+        np.testing.assert_allclose(got[4], per_ring[8], rtol=1e-5)
+        np.testing.assert_allclose(got[5], per_ring[9] + per_ring[10], rtol=1e-5)
     mom = CR.residual_correlations(model, table, "d", cats)
-    assert mom["units"] == 5 and mom["view"].shape == (3, 3)
+    assert mom["units"] == 11 and mom["view"].shape == (3, 3)
     with pytest.raises(ValueError, match="categories"):
         CR.ring_stats(model, table, "d", ["y", "x", "z"])
+    with pytest.raises(ValueError, match=r"\(U, V, T\)"):
+        CR.unit_stats(np.zeros((2, 3)), np.ones((2, 3)), np.ones(2))
+    with pytest.raises(ValueError, match="sds positive"):
+        CR.unit_stats(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.ones((1, 3)))
+    with pytest.raises(ValueError, match="unit must be"):
+        CR.ring_stats(model, table, "d", cats, unit="view")
 
 
 def test_errors_name_the_problem(rng):
@@ -316,3 +334,43 @@ def test_collapsed_planner_is_the_exact_one_with_one_draw(rng):
         for p in ("sampled", "collapsed")
     }
     np.testing.assert_allclose(got["collapsed"], got["sampled"], atol=1e-5)
+
+
+def test_kway_command_with_the_correlated_filter(rng, tmp_path):
+    """`scrppl kway --filter correlated` fits the correlations once, saves them beside the binary fits,
+    reuses them on a second run, and records them in the summary."""
+    import json
+
+    from scrppl.cli import main
+    from scrppl.kway.study import correlation_path
+    from scrppl.models.io import model_path, save_posterior
+    from scrppl.responses import empty_response_table, save_response_table
+    from scrppl.views import ViewGrid
+    from tests.test_kway import fake_posterior
+
+    cats = ["a", "b", "c"]
+    split = np.array([["fit", "fit", "test", "test"]] * 3)
+    table = empty_response_table(["dpm"], cats, cats, 4, ViewGrid(4, (10.0,), (1.0,)), split)
+    table["score"].values[:] = rng.normal(size=table["score"].shape)
+    save_response_table(table, tmp_path / "responses.nc")
+    for t in cats:
+        tree = fake_posterior(rng, t, [c for c in cats if c != t])
+        meta = json.loads(tree.attrs["meta"])
+        tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=2, categories=cats))
+        save_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t), tree)
+    argv = ["kway", "--out", str(tmp_path), "--profile", "quick", "--trials", "6"]
+    argv += ["--large-trials", "0", "--n-samples", "8", "--quiet", "--filter", "correlated"]
+    argv += ["--accept-diagnostics"]  # six fit rings say little about a 3 x 3 correlation
+    assert main(argv) == 0
+    path = correlation_path(tmp_path / "models", "dpm")
+    saved = CR.load_correlations(path)
+    assert json.loads(saved.attrs["meta"])["categories"] == cats
+    summary = json.loads((tmp_path / "kway-summary.json").read_text())
+    assert summary["filter"] == "correlated"
+    assert summary["correlations"]["attempts"] >= 1
+    assert set(summary["trials"]["methods"]) == {"planning", "random", "one_vs_rest"}
+    stamp = path.stat().st_mtime_ns
+    assert main(argv) == 0  # the saved fit is reused, not refitted
+    assert path.stat().st_mtime_ns == stamp
+    with pytest.raises(FileNotFoundError, match="correlation fit not found"):
+        CR.load_correlations(tmp_path / "nowhere.nc")

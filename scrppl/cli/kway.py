@@ -67,9 +67,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--filter",
-        choices=("instance", "naive_bayes"),
+        choices=("instance", "naive_bayes", "correlated"),
         default="instance",
-        help="belief filter of every method (default: instance-aware)",
+        help="belief filter of every method (default: instance-aware; correlated: detectors' "
+        "responses correlated, its correlations fitted by NUTS)",
     )
     p.add_argument(
         "--trials", type=int, default=None, help="trials of the paper-sized experiment (160)"

@@ -32,12 +32,13 @@ Fit
 :func:`correlation_model` is a NumPyro model with ``LKJ(eta)`` priors on the two Cholesky factors and
 the exact marginal likelihood of each ring of views of each ``fit`` instance, the instance effect
 integrated out (:func:`ring_log_marginal`, Woodbury's identity on sufficient statistics, so one
-likelihood evaluation costs ``O(T^3)`` per ring whatever its number of views). The means and sds are the
+likelihood evaluation costs ``O(T^3)`` per unit whatever its number of views). The means and sds are the
 per-detector fits' posterior means (a two-stage fit: the correlations are learnt given the viewpoint
-profiles). The rings of one instance enter as independent units, the structure the filter assumes along
-one ring; since they share the instance, this is a composite likelihood, and the posterior of ``C_u`` is
-narrower than a joint model of all rings would give. :func:`fit_correlations` runs NUTS with the
-project's diagnostics gates on the off-diagonal elements and the binary fits' retry ladder.
+profiles). A unit is one instance with every complete ring of it (``unit="instance"``, the default: one
+``b`` shared by all its views, as in the model), or one ring (``unit="ring"``: the rings of one instance
+then enter as independent units, a composite likelihood that overstates what is known of ``C_u``, and
+nine times the work per evaluation). :func:`fit_correlations` runs NUTS with the project's diagnostics
+gates on the off-diagonal elements and the binary fits' retry ladder.
 
 Filter
 ------
@@ -58,20 +59,27 @@ correlated belief.
 
 Measured
 --------
-``benchmarks/bench_kway_correlated.py`` in the paper regime (full profile, seed 0, DPM, ten categories,
-270 ``fit`` rings; record ``benchmarks/results/kway-correlated.json``):
+``benchmarks/bench_kway_correlated.py --trials 10000 --planned`` in the paper regime (full profile, seed 0,
+DPM, ten categories, the 30 ``fit`` instances as units; record ``benchmarks/results/kway-correlated.json``):
 
-* the fit passes the gates at its first attempt (4 x 400 draws, no divergence, R-hat <= 1.009); the
-  view correlations' posterior means range from -0.06 to 0.68 (mean 0.31), the instance correlations
-  average 0.09;
+* the fit passes the gates at its first attempt (4 x 500 draws, no divergence, R-hat <= 1.007), 43 s on
+  two cores; the view correlations' posterior means range from -0.07 to 0.67 (mean 0.31), the instance
+  correlations average 0.13;
 * held-out joint log predictive density of the 270 ``test`` rings: -5,731 nats with independent
-  detectors, -1,778 with the correlations (-1,795 with the view correlation alone); 266 of the 270 rings
+  detectors, -1,773 with the correlations (-1,793 with the view correlation alone); 266 of the 270 rings
   are predicted better;
-* 10,000 K-way trials with random views, paired with one-vs-rest on the same views: the independent
-  filter is 0.052 *less* accurate than one-vs-rest after one view (0.569 against 0.622), the correlated
-  filter 0.033 [0.027, 0.039] *more* (0.654), and more accurate after 2, 4 and 8 views as well (0.031,
-  0.025, 0.018, every interval above zero); top-label calibration error after 1, 2, 4 views 0.049,
-  0.033, 0.024 (independent 0.084, 0.052, 0.048), class-wise 0.010, 0.007, 0.006.
+* 10,000 K-way trials, random views paired with one-vs-rest on the same views: the independent filter is
+  0.052 *less* accurate than one-vs-rest after one view (0.569 against 0.622), the correlated filter
+  0.031 [0.025, 0.037] *more* (0.653), and more accurate after 2, 4 and 8 views as well (0.031, 0.025,
+  0.018, every interval above zero). Views to p(true) > 0.95: 3.04 with random views (independent
+  detectors 3.65), 2.93 with the collapsed planner (planning - random -0.11 [-0.14, -0.08]). Top-label
+  calibration error after 1, 2, 4 random views 0.049, 0.034, 0.023 (independent 0.084, 0.052, 0.048),
+  class-wise 0.010, 0.007, 0.006: the filter is still over-confident after one view (mean top
+  probability above its accuracy), which a wider noise would fix; the per-detector fits learn their
+  noise from the same few objects their means are fitted to.
+* Cost: one collapsed planning decision (7 candidates, ``M = 256``, 8 draws, ``K = 10``) about 5 ms on one
+  core against 0.9 ms for the independent filter's; one filter update about 1.2 ms against 0.08 ms
+  (a ``10 x 10`` Cholesky factor per draw and state).
 """
 
 from __future__ import annotations
@@ -96,6 +104,7 @@ __all__ = [
     "CorrelatedBelief",
     "RingStats",
     "ring_stats",
+    "unit_stats",
     "ring_log_marginal",
     "dense_ring_log_marginal",
     "correlation_model",
@@ -119,6 +128,9 @@ __all__ = [
 #: The posterior's free parameters checked by the diagnostics gates (the off-diagonal elements).
 CORRELATION_PARAMETERS = ("view_rho", "instance_rho")
 
+#: What one unit of :func:`ring_stats` is: one ring of views, or every complete ring of one instance.
+UNITS = ("ring", "instance")
+
 #: Concentration of the LKJ priors (1 is uniform over correlation matrices; 2 shrinks mildly towards
 #: the identity, the independent detectors the other K-way models assume).
 LKJ_CONCENTRATION = 2.0
@@ -127,9 +139,10 @@ LKJ_CONCENTRATION = 2.0
 def _default_sampler():
     from scrppl.models.mcmc import SamplerConfig
 
-    # paper regime, DPM, 270 rings: 4 x (300 + 300) at 0.9 gave bulk ESS >= 850, no divergence, 15
-    # leapfrog steps a draw; 0.95 and 500 + 500 took three times as long for the same gates
-    return SamplerConfig(num_warmup=400, num_samples=400, target_accept_prob=0.9)
+    # paper regime, DPM, 30 fit instances (one unit each): 4 x (500 + 500) at 0.95 passed the gates
+    # for two seeds in 31-36 s on two cores (bulk ESS >= 848, no divergence, 16-17 leapfrog steps a
+    # draw); 400 + 400 at 0.9 left the largest of the 90 R-hats at 1.011-1.012
+    return SamplerConfig(num_warmup=500, num_samples=500, target_accept_prob=0.95)
 
 
 #: Default sampler of :func:`fit_correlations`.
@@ -285,6 +298,31 @@ def _stack_stats(parts) -> RingStats:
     return RingStats(*(jnp.asarray(np.stack(c)) for c in cols))
 
 
+def unit_stats(residuals, sds, taus) -> RingStats:
+    """:class:`RingStats` of ``U`` units of ``V`` views each.
+
+    Residuals and noise sds ``(U, V, T)``, instance sds ``(U, T)``; units of different lengths come from
+    :func:`ring_stats`.
+    """
+    residuals, sds, taus = (np.asarray(x, np.float64) for x in (residuals, sds, taus))
+    if (
+        residuals.ndim != 3
+        or sds.shape != residuals.shape
+        or taus.shape
+        != (
+            residuals.shape[0],
+            residuals.shape[2],
+        )
+    ):
+        raise ValueError(
+            f"residuals and sds must be (U, V, T) and taus (U, T); got {residuals.shape}, "
+            f"{sds.shape}, {taus.shape}"
+        )
+    if not (np.isfinite(residuals).all() and (sds > 0).all() and (taus >= 0).all()):
+        raise ValueError("residuals must be finite, sds positive and taus non-negative")
+    return _stack_stats([_stats_one(r, s, t) for r, s, t in zip(residuals, sds, taus, strict=True)])
+
+
 def ring_log_marginal(view_chol, instance_chol, stats: RingStats) -> jax.Array:
     r"""``log p(r_1 .. r_V)`` of each unit: the exact Gaussian marginal, ``(U,)``.
 
@@ -371,12 +409,14 @@ def ring_stats(
     categories,
     split: str = "fit",
     transform=None,
+    unit: str = "instance",
 ) -> RingStats:
     """Sufficient statistics of every complete ring of the ``split`` instances under ``model``.
 
     ``model`` is the family's K-way model (targets and categories in the order of ``categories``); the
     residuals are taken from its posterior-mean means, the sds are its root-mean-square sds. A ring is
-    complete when every target responded at every azimuth of it.
+    complete when every target responded at every azimuth of it; ``unit`` (:data:`UNITS`) makes one unit
+    of each such ring or of all of an instance's complete rings.
     """
     check_kway_model(model)
     categories = [str(c) for c in categories]
@@ -395,12 +435,23 @@ def ring_stats(
         raise ValueError(
             f"the table's grid {score.shape[3:]} differs from the K-way model's {model.mu.shape[3:]}"
         )
-    parts = [
-        _stats_one(r, s, tau)
-        for r, s, tau, _, _ in _residual_units(
-            model, score, table["split"].values.astype(str), split
-        )
-    ]
+    if unit not in UNITS:
+        raise ValueError(f"unit must be one of {UNITS}, got {unit!r}")
+    rings = list(_residual_units(model, score, table["split"].values.astype(str), split))
+    if (
+        unit == "instance"
+    ):  # every complete ring of an instance in one unit: one b for all its views
+        groups: dict = {}
+        for r, s, tau, c, i in rings:
+            groups.setdefault((c, i), []).append((r, s, tau))
+        parts = [
+            _stats_one(
+                np.concatenate([g[0] for g in v]), np.concatenate([g[1] for g in v]), v[0][2]
+            )
+            for v in groups.values()
+        ]
+    else:
+        parts = [_stats_one(r, s, tau) for r, s, tau, _, _ in rings]
     if not parts:
         raise ValueError(f"no complete ring of a {split!r} instance for detector {detector!r}")
     return _stack_stats(parts)

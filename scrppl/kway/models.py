@@ -39,6 +39,13 @@ with each view), and the outcome depends on which posterior draws represent the 
 target the book table's K-way accuracy fell from view 2 to view 4, with 8 it did not. Hence the command's
 profiles keep 8 draws; a heavier-tailed instance effect would be the modelling fix.
 
+A third, measured later, matters most: the ``T`` fits are separate, so the K-way filters treat the
+detectors' responses as independent given the state, although all of them score the same image. In the
+paper regime their residuals correlate about 0.3 from view to view, and with independent detectors the
+K-way filter is less accurate than one-vs-rest after one view. :mod:`scrppl.kway.correlation` fits the
+correlations and its filter (``filter="correlated"``) is more accurate than one-vs-rest after every
+number of views.
+
 A :class:`KwayModel` is the stack of the ``T`` response models (``O = K`` classes each) with a leading
 target axis; :func:`target_model` returns one of them as a plain ``ResponseModel``.
 """

@@ -18,6 +18,14 @@ import numpy as np
 import xarray as xr
 
 from scrppl._io import atomic_path, read_json, read_netcdf, write_netcdf
+from scrppl.kway.correlation import (
+    correlations_from_fit,
+    fit_correlations,
+    load_correlations,
+    ring_stats,
+    save_correlations,
+    with_correlations,
+)
 from scrppl.kway.experiment import (
     CONFUSION_STEPS,
     DEFAULT_PLANNER,
@@ -126,7 +134,9 @@ def run_kway_study(
     detector
         The detector family.
     filter
-        ``"instance"`` or ``"naive_bayes"``.
+        ``"instance"``, ``"naive_bayes"`` or ``"correlated"`` (the instance-aware filter with the
+        detectors' responses correlated, :mod:`scrppl.kway.correlation`: its correlations are fitted on
+        the ``fit`` instances, or read from ``models_dir``, :func:`correlation_path`).
     trials, large_trials
         Trials of the two experiments (``0`` skips the large one).
     n_samples
@@ -164,6 +174,11 @@ def run_kway_study(
         )
     name = fit.info["transform"]
     trans = lambda raw: transforms.apply(name, raw)  # noqa: E731
+    corr_fit = None
+    if filter == "correlated":
+        corr_fit = _correlation_fit(
+            seed, table, models_dir, detector, categories, trans, accept_diagnostics, progress, log
+        )
     config = PlannerConfig(objective=objective, n_samples=int(n_samples))
     key = jax.random.key(seed)
     results = []
@@ -177,10 +192,13 @@ def run_kway_study(
         )
         binary = _binary_models(models_dir, detector, categories, draws)
         log(f"[kway] {detector}: {n} trials, K = {len(categories)}, {draws} draws, M = {n_samples}")
+        model = sub.model
+        if corr_fit is not None:
+            model = with_correlations(model, *correlations_from_fit(corr_fit, draws))
         results.append(
             run_kway_experiment(
                 jax.random.fold_in(key, 2 * k + 1),
-                sub.model,
+                model,
                 tr,
                 binary=binary,
                 filter=filter,
@@ -193,11 +211,74 @@ def run_kway_study(
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
     summary = summary_dict(results[0], results[1], fit.info)
+    if corr_fit is not None:
+        summary["correlations"] = correlation_summary(corr_fit)
     if (
         results[1] is not None
     ):  # the large experiment's probabilities served its calibration; not saved
         results[1] = results[1].drop_vars("p_class")
     return KwayStudy(fit, results[0], results[1], summary)
+
+
+def correlation_path(models_dir: str | Path, detector: str) -> Path:
+    """Where ``scrppl kway --filter correlated`` keeps a family's cross-detector correlation fit."""
+    return Path(models_dir) / f"correlations-{detector}.nc"
+
+
+def _correlation_fit(
+    seed, table, models_dir, detector, categories, trans, accept_diagnostics, progress, log
+):
+    """The family's cross-detector correlation fit (:mod:`scrppl.kway.correlation`), read or made.
+
+    A saved fit is reused when it was made for these categories and is newer than every binary fit it
+    was made from; otherwise the correlations are fitted on the ``fit`` instances and saved atomically.
+    """
+    from scrppl.models.io import model_path
+
+    path = correlation_path(models_dir, detector)
+    sources = [model_path(models_dir, "hierarchical", detector, t) for t in categories]
+    if path.exists() and path.stat().st_mtime >= max(p.stat().st_mtime for p in sources):
+        tree = load_correlations(path)
+        if json.loads(tree.attrs["meta"]).get("categories") == list(categories):
+            log(f"[kway] {detector}: cross-detector correlations from {path}")
+            return _checked(tree, detector, accept_diagnostics)
+    plug = kway_from_fits(models_dir, detector, categories, n_draws=64).model  # plug-in means, sds
+    stats = ring_stats(plug, table, detector, categories, transform=trans)
+    log(
+        f"[kway] {detector}: fitting the cross-detector correlations ({stats.w_outer.shape[0]} units)"
+    )
+    tree = fit_correlations(
+        jax.random.fold_in(jax.random.key(seed), 22),
+        stats,
+        progress=progress,
+        label=f"{detector} correlations",
+    )
+    meta = json.loads(tree.attrs["meta"])
+    tree.attrs["meta"] = json.dumps(dict(meta, detector=detector, categories=list(categories)))
+    save_correlations(path, tree)
+    return _checked(tree, detector, accept_diagnostics)
+
+
+def _checked(tree, detector, accept_diagnostics):
+    report = json.loads(tree.attrs["diagnostics"])
+    if not report["ok"] and not accept_diagnostics:
+        raise ValueError(
+            f"the {detector} cross-detector correlation fit failed its MCMC diagnostics "
+            f"({report['failures']}); pass --accept-diagnostics to use it anyway"
+        )
+    return tree
+
+
+def correlation_summary(tree) -> dict:
+    """What the summary records of a correlation fit: diagnostics, attempts, mean correlations."""
+    post = tree["posterior"].to_dataset()
+    report = json.loads(tree.attrs["diagnostics"])
+    return {
+        "diagnostics_ok": bool(report["ok"]),
+        "attempts": len(json.loads(tree.attrs["meta"])["attempts"]),
+        "view_rho_mean": float(post["view_rho"].mean()),
+        "instance_rho_mean": float(post["instance_rho"].mean()),
+    }
 
 
 def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
