@@ -108,7 +108,7 @@ def test_correlated_filter_is_the_dense_joint_of_all_views(rng):
         cov[j * t : (j + 1) * t, j * t : (j + 1) * t] += np.outer(s[j], s[j]) * ce[-1]
     cross = np.kron(np.ones((1, 4)), p)  # Cov(b, r)
     np.testing.assert_allclose(
-        np.asarray(belief.b_mean[-1, -1, -1]), cross @ np.linalg.solve(cov, r), atol=1e-4
+        np.asarray(belief.u_mean[-1, -1, -1]), cross @ np.linalg.solve(cov, r), atol=1e-4
     )
 
 

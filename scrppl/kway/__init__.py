@@ -23,6 +23,15 @@ detectors of one family, and the robot plans where to look to tell the categorie
   binary filters, accuracy, confusion matrices.
 """
 
+from scrppl.kway.correlation import (
+    CorrelatedBelief,
+    CorrelatedKwayModel,
+    correlation_model,
+    correlations_from_fit,
+    fit_correlations,
+    ring_stats,
+    with_correlations,
+)
 from scrppl.kway.filter import (
     KwayInstanceBelief,
     KwayNaiveBayesBelief,
@@ -87,4 +96,11 @@ __all__ = [
     "sampled_expected_entropy",
     "collapse_mixture",
     "collapsed_expected_entropy",
+    "CorrelatedKwayModel",
+    "CorrelatedBelief",
+    "correlation_model",
+    "ring_stats",
+    "fit_correlations",
+    "correlations_from_fit",
+    "with_correlations",
 ]

@@ -14,13 +14,13 @@ pose ``theta`` seen from robot view ``(phi, e, s)``, the response *vector* ``f``
 
 .. math::
 
-    f = \mu_{k a e s} + b + \varepsilon, \qquad
-    b \sim \mathcal N\big(0,\; D_{\tau_k} C_u D_{\tau_k}\big), \qquad
-    \varepsilon \sim \mathcal N\big(0,\; D_{\sigma_{k a e s}} C_\varepsilon D_{\sigma_{k a e s}}\big),
+    f = \mu_{k a e s} + u + \operatorname{diag}(\sigma_{k a e s})\,\varepsilon, \qquad
+    u \sim \mathcal N\big(0,\; \operatorname{diag}(\tau_k)\, R_u \operatorname{diag}(\tau_k)\big), \qquad
+    \varepsilon \sim \mathcal N(0,\; R_\varepsilon),
 
-with ``a = (phi - theta) mod A``, the means and sds of the per-detector fits (``D_x`` the diagonal matrix
-of ``x``), the instance effect ``b`` (one per object, shared by its views, as ``u`` in the binary model)
-and the view noise ``epsilon`` (one per view). ``C_u`` and ``C_epsilon`` are correlation matrices; with
+with ``a = (phi - theta) mod A``, the means and sds of the per-detector fits, the instance effects ``u``
+(one per detector and object, shared by the object's views, as in the binary model) and the standardised
+view noise ``epsilon`` (one per view). ``R_u`` and ``R_epsilon`` are correlation matrices; with
 both the identity this is the K-way model of :mod:`scrppl.kway.models` and the correlated filter below is
 its instance-aware filter: number for number with one draw (``tests/test_kway_correlation.py``). With
 ``N`` draws the independent filter averages each target's evidence over its own draws (the product of
@@ -35,8 +35,8 @@ integrated out (:func:`ring_log_marginal`, Woodbury's identity on sufficient sta
 likelihood evaluation costs ``O(T^3)`` per unit whatever its number of views). The means and sds are the
 per-detector fits' posterior means (a two-stage fit: the correlations are learnt given the viewpoint
 profiles). A unit is one instance with every complete ring of it (``unit="instance"``, the default: one
-``b`` shared by all its views, as in the model), or one ring (``unit="ring"``: the rings of one instance
-then enter as independent units, a composite likelihood that overstates what is known of ``C_u``, and
+``u`` shared by all its views, as in the model), or one ring (``unit="ring"``: the rings of one instance
+then enter as independent units, a composite likelihood that overstates what is known of ``R_u``, and
 nine times the work per evaluation). :func:`fit_correlations` runs NUTS with the project's diagnostics
 gates on the off-diagonal elements and the binary fits' retry ladder.
 
@@ -45,7 +45,7 @@ Filter
 :class:`CorrelatedKwayModel` holds a K-way model's arrays plus ``N`` draws of the two matrices (draw
 ``n`` of every target with draw ``n`` of the correlations: the per-detector posteriors are independent,
 so this is a draw of their product). :func:`init_belief` and :func:`update` are the instance-aware filter
-with a ``T``-dimensional Kalman filter of ``b`` per draw and state: exact given the draws.
+with a ``T``-dimensional Kalman filter of ``u`` per draw and state: exact given the draws.
 :mod:`scrppl.kway.filter` runs it as ``filter="correlated"``.
 
 Planning
@@ -77,9 +77,9 @@ DPM, ten categories, the 30 ``fit`` instances as units; record ``benchmarks/resu
   class-wise 0.010, 0.007, 0.006: the filter is still over-confident after one view (mean top
   probability above its accuracy), which a wider noise would fix; the per-detector fits learn their
   noise from the same few objects their means are fitted to.
-* Cost: one collapsed planning decision (7 candidates, ``M = 256``, 8 draws, ``K = 10``) about 5 ms on one
-  core against 0.9 ms for the independent filter's; one filter update about 1.2 ms against 0.08 ms
-  (a ``10 x 10`` Cholesky factor per draw and state).
+* Cost (``--only-timing``, two cores, medians): one collapsed planning decision (7 candidates, ``M =
+  256``, 8 draws, ``K = 10``) 4.0 ms against 1.1 ms for the independent filter's; one filter update 1.5
+  ms against 0.3 ms (a ``10 x 10`` Cholesky factor per draw and state).
 """
 
 from __future__ import annotations
@@ -159,9 +159,9 @@ class CorrelatedKwayModel(NamedTuple):
     tau
         ``(T, N, K)``.
     view_corr
-        ``C_epsilon``, ``(N, T, T)``: correlation of the view noise across detectors.
+        ``R_epsilon``, ``(N, T, T)``: correlation of the view noise across detectors.
     instance_corr
-        ``C_u``, ``(N, T, T)``: correlation of the instance effects across detectors.
+        ``R_u``, ``(N, T, T)``: correlation of the instance effects across detectors.
     """
 
     mu: jax.Array
@@ -198,16 +198,16 @@ class CorrelatedBelief(NamedTuple):
     ----------
     log_prior
         Normalised ``log p(k, theta)``, ``(K, A)``.
-    b_mean, b_cov
-        Posterior of the instance effect vector ``b`` per draw and state: ``(N, K, A, T)`` and
+    u_mean, u_cov
+        Posterior of the instance effect vector ``u`` per draw and state: ``(N, K, A, T)`` and
         ``(N, K, A, T, T)``.
     log_evidence
         ``log p(f_1 .. f_j | n, k, theta)``, ``(N, K, A)``.
     """
 
     log_prior: jax.Array
-    b_mean: jax.Array
-    b_cov: jax.Array
+    u_mean: jax.Array
+    u_cov: jax.Array
     log_evidence: jax.Array
 
 
@@ -326,18 +326,18 @@ def unit_stats(residuals, sds, taus) -> RingStats:
 def ring_log_marginal(view_chol, instance_chol, stats: RingStats) -> jax.Array:
     r"""``log p(r_1 .. r_V)`` of each unit: the exact Gaussian marginal, ``(U,)``.
 
-    The residuals of a unit have covariance ``blockdiag_v(D_{s_v} C_e D_{s_v}) + (1 1^T) (x) D_tau C_u
-    D_tau``; Woodbury's identity and the determinant lemma reduce it to ``T x T`` matrices:
-    ``log|Sigma| = sum 2 log s + V log|C_e| + log|I + L^T M L|`` and
-    ``r^T Sigma^{-1} r = tr(C_e^{-1} W) - h^T (I + L^T M L)^{-1} h``, with ``L = D_tau chol(C_u)``,
-    ``M = C_e^{-1} o Q`` (elementwise), ``h = L^T g`` and ``g_t = sum_u (C_e^{-1})_{tu} G_{tu}``.
+    The residuals of a unit have covariance ``blockdiag_v(D_{s_v} R_e D_{s_v}) + (1 1^T) (x) D_tau R_u
+    D_tau`` (``D_x`` the diagonal matrix of ``x``); Woodbury's identity and the determinant lemma reduce it to ``T x T`` matrices:
+    ``log|Sigma| = sum 2 log s + V log|R_e| + log|I + L^T M L|`` and
+    ``r^T Sigma^{-1} r = tr(R_e^{-1} W) - h^T (I + L^T M L)^{-1} h``, with ``L = D_tau chol(R_u)``,
+    ``M = R_e^{-1} o Q`` (elementwise), ``h = L^T g`` and ``g_t = sum_u (R_e^{-1})_{tu} G_{tu}``.
     """
     t = stats.w_outer.shape[-1]
     eye = jnp.eye(t, dtype=stats.w_outer.dtype)
     ce_inv = cho_solve((view_chol, True), eye)
     logdet_ce = 2 * jnp.sum(jnp.log(jnp.diagonal(view_chol)))
     m = ce_inv * stats.inv_s_outer  # (U, T, T)
-    lp = stats.tau[..., :, None] * instance_chol  # (U, T, T): D_tau chol(C_u)
+    lp = stats.tau[..., :, None] * instance_chol  # (U, T, T): D_tau chol(R_u)
     a = eye + jnp.swapaxes(lp, -1, -2) @ m @ lp
     g = jnp.sum(ce_inv * stats.w_over_s, axis=-1)  # (U, T)
     h = jnp.einsum("uts,ut->us", lp, g)
@@ -583,7 +583,7 @@ def fit_correlations(
 
 
 def correlations_from_fit(posterior: xr.DataTree, n_draws: int) -> tuple[np.ndarray, np.ndarray]:
-    """``n_draws`` evenly spaced posterior draws of ``(C_epsilon, C_u)``, ``(n_draws, T, T)`` each."""
+    """``n_draws`` evenly spaced posterior draws of ``(R_epsilon, R_u)``, ``(n_draws, T, T)`` each."""
     from scrppl.models.predictive import draw_index
 
     post = posterior["posterior"].to_dataset()
@@ -632,7 +632,7 @@ def load_correlations(path) -> xr.DataTree:
 def heldout_ring_lpd(view_corr, instance_corr, stats: RingStats) -> np.ndarray:
     """Log predictive density of each unit's ring under ``N`` draws of the correlations, ``(U,)``.
 
-    ``log mean_n p(ring | C_e[n], C_u[n])`` with the means and sds the stats were made with; identity
+    ``log mean_n p(ring | R_e[n], R_u[n])`` with the means and sds the stats were made with; identity
     matrices give the independent detectors' density.
     """
     ve = jnp.linalg.cholesky(jnp.asarray(view_corr, stats.w_outer.dtype))
@@ -665,7 +665,7 @@ def init_belief(model: CorrelatedKwayModel, prior=None) -> CorrelatedBelief:
 def update(model: CorrelatedKwayModel, belief: CorrelatedBelief, f, phi, e=0, s=0):
     """Fuse the response vector ``f`` ``(T,)`` seen at robot view ``(phi, e, s)``.
 
-    One ``T``-dimensional Kalman update of ``b`` per draw and state.
+    One ``T``-dimensional Kalman update of ``u`` per draw and state.
     """
     from scrppl.kway.filter import _check_view, _responses, view_parameters
 
@@ -676,10 +676,10 @@ def update(model: CorrelatedKwayModel, belief: CorrelatedBelief, f, phi, e=0, s=
     mu = jnp.moveaxis(mu, 0, -1)  # (N, K, A, T)
     sd = jnp.sqrt(jnp.moveaxis(sigma2, 0, -1))
     noise = sd[..., :, None] * model.view_corr[:, None, None] * sd[..., None, :]
-    p = belief.b_cov
+    p = belief.u_cov
     cov = p + noise
     chol = jnp.linalg.cholesky(cov)
-    resid = f - mu - belief.b_mean
+    resid = f - mu - belief.u_mean
     z = solve_triangular(chol, resid[..., None], lower=True)[..., 0]
     t = f.shape[0]
     loglik = -0.5 * (
@@ -688,7 +688,7 @@ def update(model: CorrelatedKwayModel, belief: CorrelatedBelief, f, phi, e=0, s=
         + t * math.log(2 * math.pi)
     )
     x = cho_solve((chol, True), p)  # S^-1 P
-    mean = belief.b_mean + jnp.einsum("...ts,...t->...s", x, resid)  # P S^-1 r
+    mean = belief.u_mean + jnp.einsum("...ts,...t->...s", x, resid)  # P S^-1 r
     new = p - p @ x
     new = 0.5 * (new + jnp.swapaxes(new, -1, -2))
     return CorrelatedBelief(belief.log_prior, mean, new, belief.log_evidence + loglik)
@@ -747,7 +747,7 @@ def predictive(model: CorrelatedKwayModel, belief: CorrelatedBelief, phi, e=0, s
     mu, noise = _noise_cov(model, phi, e, s)
     log_draw = belief.log_evidence - logsumexp(belief.log_evidence, axis=0, keepdims=True)
     return CorrelatedMixture(
-        joint_log_belief(belief), log_draw, mu + belief.b_mean, noise + belief.b_cov
+        joint_log_belief(belief), log_draw, mu + belief.u_mean, noise + belief.u_cov
     )
 
 
@@ -801,14 +801,14 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
     log_draw = belief.log_evidence - logsumexp(belief.log_evidence, axis=0, keepdims=True)
     state, draw = _components(key, joint_log_belief(belief), log_draw, n_samples)
     k, theta = state // n_a, state % n_a
-    # f = mu + b + e: b from the instance effect's posterior (the same for every candidate, so its
-    # Cholesky factors are taken once), e = D_sigma chol(C_e) z from the view noise
-    key_b, key_e = jax.random.split(jax.random.fold_in(key, 1))
+    # f = mu + u + e: u from the instance effect's posterior (the same for every candidate, so its
+    # Cholesky factors are taken once), e = D_sigma chol(R_e) z from the view noise
+    key_u, key_e = jax.random.split(jax.random.fold_in(key, 1))
     shape = (n_samples, model.mu.shape[0])
-    b = belief.b_mean[draw, k, theta] + jnp.einsum(
+    u = belief.u_mean[draw, k, theta] + jnp.einsum(
         "mts,ms->mt",
-        jnp.linalg.cholesky(belief.b_cov[draw, k, theta]),
-        jax.random.normal(key_b, shape, model.mu.dtype),
+        jnp.linalg.cholesky(belief.u_cov[draw, k, theta]),
+        jax.random.normal(key_u, shape, model.mu.dtype),
     )
     z = jnp.einsum(
         "mts,ms->mt",
@@ -820,9 +820,9 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
 
     def one(v):
         mu, noise = _noise_cov(model, v[0], v[1], v[2])
-        mix = CorrelatedMixture(log_state, log_draw, mu + belief.b_mean, noise + belief.b_cov)
+        mix = CorrelatedMixture(log_state, log_draw, mu + belief.u_mean, noise + belief.u_cov)
         sd = jnp.sqrt(jnp.diagonal(noise, axis1=-2, axis2=-1))
-        f = mu[draw, k, theta] + b + sd[draw, k, theta] * z
+        f = mu[draw, k, theta] + u + sd[draw, k, theta] * z
         return _entropy(_log_joint(mix, f, planner), n_k, objective).mean()
 
     return jax.vmap(one)(views)

@@ -140,7 +140,7 @@ def check_kway_belief(model: KwayModel, belief) -> None:
     if isinstance(belief, KwayNaiveBayesBelief):
         want = {"log_belief": (k, a)}
     elif isinstance(belief, CB.CorrelatedBelief):
-        want = {"log_prior": (k, a), "b_mean": (n, k, a, t), "b_cov": (n, k, a, t, t)}
+        want = {"log_prior": (k, a), "u_mean": (n, k, a, t), "u_cov": (n, k, a, t, t)}
         want["log_evidence"] = (n, k, a)
     elif isinstance(belief, KwayInstanceBelief):
         want = dict.fromkeys(("u_mean", "u_var", "log_evidence"), (t, n, k, a))
