@@ -23,6 +23,7 @@ __all__ = [
     "check_11_1",
     "check_11_2",
     "check_11_3",
+    "check_11_4",
     "random_kway_model",
     "binary_from_kway",
     "one_vs_rest_reference",
@@ -425,3 +426,123 @@ def check_11_3(one_vs_rest) -> str:
         "each view take its p(o = 1) and normalise over the K filters.",
     )
     return f"agrees with the one-vs-rest baseline of scrppl.kway.experiment on {n} inputs"
+
+
+# -- 11.4 what correlated views are worth ----------------------------------------------------------
+def _information_ref(delta, s, tau, view_corr, instance_corr):
+    """``(1/2) d' Sigma^-1 d`` by the library's Woodbury marginal: ``log p(0) - log p(d)``."""
+    from scrppl.kway.correlation import ring_log_marginal, unit_stats
+
+    delta, s, tau = (np.asarray(x, float) for x in (delta, s, tau))
+    chols = [jnp.linalg.cholesky(jnp.asarray(c, jnp.float32)) for c in (view_corr, instance_corr)]
+    stats = unit_stats(
+        np.stack([np.zeros_like(delta), delta]), np.stack([s, s]), np.stack([tau, tau])
+    )
+    lp = np.asarray(ring_log_marginal(*chols, stats), float)
+    return float(lp[0] - lp[1])
+
+
+def _information_wrong(delta, s, tau, view_corr, instance_corr, *, how):
+    delta, s, tau = (np.asarray(x, float) for x in (delta, s, tau))
+    view_corr, instance_corr = np.asarray(view_corr, float), np.asarray(instance_corr, float)
+    v, t = delta.shape
+    if how == "independent":
+        view_corr = instance_corr = np.eye(t)
+    shared = np.outer(tau, tau) * instance_corr
+    cov = (
+        np.zeros((v * t, v * t))
+        if how in ("no_instance", "instance_per_view")
+        else np.kron(np.ones((v, v)), shared)
+    )
+    for j in range(v):
+        block = view_corr if how == "unscaled" else np.outer(s[j], s[j]) * view_corr
+        if how == "instance_per_view":
+            block = block + shared
+        cov[j * t : (j + 1) * t, j * t : (j + 1) * t] += block
+    d = delta.ravel()
+    quad = d @ np.linalg.solve(cov, d)
+    return float(quad if how == "no_half" else 0.5 * quad)
+
+
+_INFORMATION_MISTAKES = [
+    Mistake(
+        "the detectors' errors are correlated: one view's block of the covariance is "
+        "diag(s_v) R_eps diag(s_v), and the instance effects' is diag(tau) R_u diag(tau).",
+        partial(_information_wrong, how="independent"),
+    ),
+    Mistake(
+        "every view of the object shares its instance effects u: add diag(tau) R_u diag(tau) to "
+        "*every* block (v, w) of the covariance, not only to the diagonal blocks (np.kron with a "
+        "V x V matrix of ones).",
+        partial(_information_wrong, how="instance_per_view"),
+    ),
+    Mistake(
+        "the instance effects u are part of the covariance of the responses: add "
+        "diag(tau) R_u diag(tau) to every block (v, w).",
+        partial(_information_wrong, how="no_instance"),
+    ),
+    Mistake(
+        "R_eps is a correlation matrix: scale it by the view's noise sds, diag(s_v) R_eps diag(s_v).",
+        partial(_information_wrong, how="unscaled"),
+    ),
+    Mistake(
+        "the expected log-likelihood ratio of two Gaussians with one covariance is "
+        "(1/2) d' Sigma^-1 d: you left out the 1/2.",
+        partial(_information_wrong, how="no_half"),
+    ),
+]
+
+
+def _random_corr(rng, t, strength):
+    """A random ``t x t`` correlation matrix, off-diagonals of about ``strength`` in size."""
+    a = rng.normal(0.0, 1.0, (t, t + 2)) + strength * 2.5 * rng.normal(0.0, 1.0, (t, 1))
+    cov = a @ a.T
+    d = np.sqrt(np.diag(cov))
+    return cov / np.outer(d, d)
+
+
+def _information_cases() -> list[Case]:
+    out = []
+    for seed, v, t, label in (
+        (1, 1, 2, "one view, two detectors"),
+        (2, 3, 3, "three views, three detectors"),
+        (3, 5, 4, "five views, four detectors"),
+        (4, 2, 5, "two views, five detectors with unequal noise sds"),
+    ):
+        rng = np.random.default_rng([seed, 114])
+        delta = rng.normal(0.0, 1.0, (v, t))
+        s = np.exp(rng.normal(np.log(0.8), 0.3 if seed == 4 else 0.1, (v, t)))
+        tau = np.abs(rng.normal(0.5, 0.15, t))
+        out.append(
+            Case((delta, s, tau, _random_corr(rng, t, 0.5), _random_corr(rng, t, 0.3)), label)
+        )
+    return out
+
+
+@exercise(
+    "11.4",
+    "What correlated views are worth",
+    "medium",
+    reference=lambda: (_information_ref,),
+    wrong=lambda: [(m.fn,) for m in _INFORMATION_MISTAKES[:2]],
+)
+def check_11_4(information) -> str:
+    """Check exercise 11.4.
+
+    Compares ``information(delta, s, tau, view_corr, instance_corr)`` with ``log p(0) - log p(delta)``
+    of :func:`scrppl.kway.correlation.ring_log_marginal` (the correlated model's Woodbury marginal).
+    """
+    n = check_function(
+        information,
+        _information_ref,
+        _information_cases(),
+        name="information(delta, s, tau, view_corr, instance_corr)",
+        rtol=1e-4,
+        atol=1e-4,
+        mistakes=_INFORMATION_MISTAKES,
+        hint="build the (V T) x (V T) covariance: np.kron(np.ones((V, V)), diag(tau) R_u diag(tau)), "
+        "plus diag(s_v) R_eps diag(s_v) on block (v, v); return 0.5 * d @ solve(cov, d) with d the "
+        "flattened delta.",
+        convert=lambda x: float(x) if np.ndim(x) == 0 else x,
+    )
+    return f"agrees with the correlated model's Woodbury marginal on {n} inputs"
