@@ -336,6 +336,35 @@ def test_collapsed_planner_is_the_exact_one_with_one_draw(rng):
     np.testing.assert_allclose(got["collapsed"], got["sampled"], atol=1e-5)
 
 
+def test_collapsed_gaussian_is_the_mixture_moments_and_its_density_scipys(rng):
+    """The collapsed planner's pieces against numpy and scipy: the law of total variance over the
+    draws, and the density through the precision's triangle against the multivariate normal."""
+    from scipy.stats import multivariate_normal
+
+    n, k, a, t = 3, 2, 3, 4
+    w = rng.dirichlet(np.ones(n), size=(k, a)).transpose(2, 0, 1)  # (N, K, A)
+    mean = rng.normal(0, 1, size=(n, k, a, t))
+    cov = np.stack(
+        [[[random_corr(rng, t) * 0.5 for _ in range(a)] for _ in range(k)] for _ in range(n)]
+    )
+    m, c = CR._collapse(*(jnp.asarray(x, jnp.float32) for x in (w, mean, cov)))
+    want_m = np.einsum("nka,nkat->kat", w, mean)
+    dev = mean - want_m
+    want_c = np.einsum("nka,nkats->kats", w, cov + dev[..., :, None] * dev[..., None, :])
+    np.testing.assert_allclose(np.asarray(m), want_m, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(c), want_c, atol=1e-5)
+    f = rng.normal(0, 1.5, size=(7, t))
+    got = np.asarray(CR._log_gauss_precision(jnp.asarray(f, jnp.float32), m, c))  # (M, K * A)
+    want = np.stack(
+        [
+            multivariate_normal(want_m.reshape(-1, t)[s], want_c.reshape(-1, t, t)[s]).logpdf(f)
+            for s in range(k * a)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(got, want, atol=2e-4)
+
+
 def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     """`scrppl kway --filter correlated` fits the correlations once, saves them beside the binary fits,
     reuses them on a second run, and records them in the summary."""

@@ -780,17 +780,49 @@ def _log_gauss(f, mean, chol):
 def _log_joint(mix: CorrelatedMixture, f, planner: str):
     """Unnormalised ``log p(k, theta | F, f)`` for ``f (M, T)``, as ``(M, K * A)``."""
     log_state = jnp.maximum(mix.log_state.reshape(-1), -1e30)
-    if planner == "collapsed" or mix.mean.shape[0] == 1:
-        w = jnp.exp(mix.log_draw)[..., None]  # (N, K, A, 1)
-        w = w / w.sum(0, keepdims=True)
-        mean = (w * mix.mean).sum(0)  # (K, A, T)
-        dev = mix.mean - mean
-        cov = (w[..., None] * (mix.cov + dev[..., :, None] * dev[..., None, :])).sum(0)
-        ll = _log_gauss(f, mean, jnp.linalg.cholesky(cov))  # (M, K, A)
-        return log_state + ll.reshape(f.shape[0], -1)
+    if planner == "collapsed":
+        w = jnp.exp(mix.log_draw)
+        w = w / w.sum(0, keepdims=True)  # (N, K, A)
+        mean, cov = _collapse(w, mix.mean, mix.cov)
+        return log_state + _log_gauss_precision(f, mean, cov)
     ll = _log_gauss(f, mix.mean, jnp.linalg.cholesky(mix.cov))  # (M, N, K, A)
     ll = logsumexp(jnp.maximum(mix.log_draw, -1e30) + ll, axis=1)
     return log_state + ll.reshape(f.shape[0], -1)
+
+
+def _collapse(w, mean, cov):
+    """One Gaussian per state with the mixture's mean and covariance over the draws.
+
+    ``w (N, K, A)`` normalised over the draws, ``mean (N, K, A, T)``, ``cov (N, K, A, T, T)`` (or any
+    array that broadcasts to it); returns ``(K, A, T)`` and ``(K, A, T, T)``.
+    """
+    m = jnp.einsum("nka,nkat->kat", w, mean)
+    dev = mean - m
+    spread = jnp.einsum("nkat,nkas->kats", w[..., None] * dev, dev)
+    return m, jnp.einsum("nka,nkats->kats", w, cov) + spread
+
+
+def _log_gauss_precision(f, mean, cov):
+    """``log Normal(f; mean_s, cov_s)`` for ``f (M, T)`` and every state ``s``: ``(M, S)``.
+
+    The collapsed planner's scoring. The quadratic form through the precision ``P_s`` (from the Cholesky
+    factor): ``f' P f`` as one matrix product of the ``T^2`` products ``f_i f_j`` with ``P_s``, less
+    ``2 f' P m`` plus ``m' P m`` (``f`` and the means centred on the samples' mean first, to keep the
+    terms small). Equal to :func:`_log_gauss` to rounding; a planning decision of the paper regime's size
+    (``T = 10``, 80 states, 8 candidates, ``M = 256``) takes about three quarters of the time, as the
+    products become one matrix product with inner dimension ``T^2`` instead of ``S`` triangular solves.
+    """
+    t = f.shape[-1]
+    m = mean.reshape(-1, t)
+    lc = jnp.linalg.cholesky(cov.reshape(-1, t, t))
+    prec = cho_solve((lc, True), jnp.broadcast_to(jnp.eye(t, dtype=lc.dtype), lc.shape))
+    ref = f.mean(0)
+    fc, mc = f - ref, m - ref
+    pm = jnp.einsum("sij,sj->si", prec, mc)
+    outer = (fc[:, :, None] * fc[:, None, :]).reshape(f.shape[0], t * t)
+    quad = outer @ prec.reshape(-1, t * t).T - 2 * fc @ pm.T + jnp.sum(mc * pm, -1)
+    logdet = jnp.sum(jnp.log(jnp.diagonal(lc, axis1=-2, axis2=-1)), -1)  # (S,)
+    return -0.5 * quad - logdet - 0.5 * t * math.log(2 * math.pi)
 
 
 def _expected_entropies(key, model, belief, views, n_samples, objective, planner):
@@ -817,13 +849,25 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
     )
 
     log_state = joint_log_belief(belief)
+    collapsed = planner == "collapsed"
+    if collapsed:
+        # the instance effects' share of the collapsed covariance is the same for every candidate
+        w = jnp.exp(log_draw)
+        w = w / w.sum(0, keepdims=True)
+        u_part = jnp.einsum("nka,nkats->kats", w, belief.u_cov)
+        flat_state = jnp.maximum(log_state.reshape(-1), -1e30)
 
     def one(v):
         mu, noise = _noise_cov(model, v[0], v[1], v[2])
-        mix = CorrelatedMixture(log_state, log_draw, mu + belief.u_mean, noise + belief.u_cov)
         sd = jnp.sqrt(jnp.diagonal(noise, axis1=-2, axis2=-1))
         f = mu[draw, k, theta] + u + sd[draw, k, theta] * z
-        return _entropy(_log_joint(mix, f, planner), n_k, objective).mean()
+        if collapsed:
+            mean, cov = _collapse(w, mu + belief.u_mean, noise)
+            log_joint = flat_state + _log_gauss_precision(f, mean, cov + u_part)
+        else:
+            mix = CorrelatedMixture(log_state, log_draw, mu + belief.u_mean, noise + belief.u_cov)
+            log_joint = _log_joint(mix, f, planner)
+        return _entropy(log_joint, n_k, objective).mean()
 
     return jax.vmap(one)(views)
 
