@@ -871,6 +871,9 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     report = write_report(tmp_path).read_text()
     assert "## Which object is it? K-way recognition" in report
     assert "Expected calibration error of the top-label probability after 1, 2, 4 views" in report
+    # K-way minus one-vs-rest accuracy, the summary's numbers
+    d = summary["trials"]["random_minus_one_vs_rest"]["accuracy"]
+    assert f"after 1: {d['mean'][0]:.3f} [{d['lo'][0]:.3f}, {d['hi'][0]:.3f}]" in report
     assert main(["kway", "--out", str(tmp_path / "nowhere"), "--quiet"]) == 1
 
 

@@ -398,6 +398,14 @@ def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     assert summary["filter"] == "correlated"
     assert summary["correlations"]["attempts"] >= 1
     assert set(summary["trials"]["methods"]) == {"planning", "random", "one_vs_rest"}
+    # the report says what was fitted, with the summary's numbers
+    from scrppl.report import write_report
+
+    report = write_report(tmp_path).read_text()
+    c = summary["correlations"]
+    assert "Responses correlated across the detectors" in report
+    assert f"{c['view_rho_mean']:.2f} for the noise of one view" in report
+    assert f"{c['instance_rho_mean']:.2f} for the instance effects" in report
     stamp = path.stat().st_mtime_ns
     assert main(argv) == 0  # the saved fit is reused, not refitted
     assert path.stat().st_mtime_ns == stamp

@@ -53,6 +53,13 @@ def _experiment(e: dict, label: str) -> str:
             f". The K-way filter (random views) minus one-vs-rest on the same views: views to confidence "
             f"{_ci(r['mean'], r['lo'], r['hi'], 2)}"
         )
+        a = e["random_minus_one_vs_rest"].get("accuracy")
+        if a:
+            text += "; accuracy " + ", ".join(
+                f"after {k}: {_ci(a['mean'][k - 1], a['lo'][k - 1], a['hi'][k - 1])}"
+                for k in steps
+                if k - 1 < len(a["mean"])
+            )
     cal = e.get("calibration")
     if cal:
         text += (
@@ -101,6 +108,16 @@ def kway_markdown(summary: dict) -> str:
         f"respond. Filter: {summary.get('filter')}; planner: {_planner_name(cfg.get('planner'))} expected "
         f"{cfg.get('objective', '?')} entropy, M = {cfg.get('n_samples', '?')}.\n\n"
     )
+    corr = summary.get("correlations")
+    if corr:
+        text += (
+            "Responses correlated across the detectors (the correlated filter, `scrppl.kway.correlation`): "
+            f"the correlation matrices fitted by NUTS in {corr['attempts']} "
+            f"attempt{'s' if corr['attempts'] > 1 else ''}, diagnostics "
+            f"{'passed' if corr['diagnostics_ok'] else 'FAILED'}; mean correlation between two detectors "
+            f"{corr['view_rho_mean']:.2f} for the noise of one view, {corr['instance_rho_mean']:.2f} for "
+            "the instance effects.\n\n"
+        )
     if summary.get("diagnostics_failed"):
         text += f"_Fits used despite failed MCMC diagnostics: {', '.join(summary['diagnostics_failed'])}._\n\n"
     text += _experiment(summary["trials"], "Paper-sized experiment")
