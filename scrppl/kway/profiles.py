@@ -81,13 +81,12 @@ reading.
 With the detectors' responses correlated (:mod:`scrppl.kway.correlation`, the correlations fitted on this
 model's own residuals; ``bench_kway_profiles.py --correlated``, key ``full/category-noise`` of the record,
 a full run made on a 2-core Intel Xeon) the held-out rings are predicted far better still (joint LPD -496
-nats against -1,611 for the binary reading with the same correlations, ``kway-correlated.json``), but the
+nats against -1,611 for the binary reading with its own correlations, ``kway-correlated.json``), but the
 filter is more over-confident, not less: after one random view its top-label probability averages 0.72
 against an accuracy of 0.63, its calibration error is 0.088, 0.078 and 0.061 after 1, 2 and 4 views
 (0.045, 0.038 and 0.028 for the binary reading with correlations), and after eight views it is behind
-one-vs-rest (-0.010 [-0.014, -0.005]). A better density of the true category's responses does not make the
-ratio between categories better: with three fit instances a category, its own profile and sds fit those
-instances more closely than a new one.
+one-vs-rest (-0.010 [-0.014, -0.005]). A better density of the true category's responses has not made the
+ratios between categories better.
 """
 
 from __future__ import annotations
