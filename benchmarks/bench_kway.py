@@ -49,6 +49,7 @@ from scrppl.kway import filter as KF  # noqa: E402
 from scrppl.kway import planning as KP  # noqa: E402
 from scrppl.kway.experiment import DEFAULT_PLANNER  # noqa: E402
 from scrppl.kway.models import KwayModel  # noqa: E402
+from scrppl.pipeline import machine_description  # noqa: E402
 from scrppl.planning import PlannerConfig  # noqa: E402
 
 K, A, M = 10, 8, 256
@@ -58,16 +59,6 @@ EXPERIMENT_DRAWS = 8
 RESULTS = Path(__file__).resolve().parent / "results" / "kway.json"
 #: Samples per candidate of the reference estimates in the approximation study.
 _LARGE_M = 4096
-
-
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def make_model(n_draws: int, seed: int = 0) -> KwayModel:
@@ -135,7 +126,7 @@ def speed() -> dict:
         "jax": jax.__version__,
         "machine": platform.machine(),
         "cpu_count": os.cpu_count(),
-        "cpu": _cpu(),
+        "cpu": machine_description()["cpu"],
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
         "load_average_start": list(os.getloadavg()),
         "settings": {

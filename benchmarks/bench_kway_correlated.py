@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -34,16 +33,6 @@ import xarray as xr  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "kway-correlated.json"
 STEPS = (1, 2, 4, 8)
-
-
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _timing(model, corr, table, det, repeats: int = 30) -> dict:
@@ -101,6 +90,7 @@ def main() -> None:
     )
     from scrppl.kway.models import kway_from_fits
     from scrppl.kway.study import _binary_models
+    from scrppl.pipeline import machine_description
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("results", type=Path, help="a finished run's output folder")
@@ -180,7 +170,7 @@ def main() -> None:
         "trials": args.trials,
         "draws": args.draws,
         "seed": args.seed,
-        "machine": {"cores": os.cpu_count(), "cpu": _cpu(), "machine": platform.machine()},
+        "machine": machine_description(),
         "command": "python benchmarks/bench_kway_correlated.py RESULTS --trials "
         f"{args.trials} --draws {args.draws}" + (" --planned" if args.planned else ""),
         "residual_correlation_moments_fit_split": {

@@ -58,6 +58,7 @@ def _correlated(args, table, cats, trees, cache, binary, trials) -> dict:
     )
     from scrppl.kway.models import stack_models
     from scrppl.kway.profiles import profile_response_model
+    from scrppl.pipeline import machine_description
 
     plug = stack_models([profile_response_model(trees[c], cats) for c in cats], 64)
     path = cache / "correlations-dpm.nc"
@@ -117,7 +118,7 @@ def _correlated(args, table, cats, trees, cache, binary, trials) -> dict:
             float(ds["views_to_confidence"].sel({"method": "random"}).mean()), 3
         ),
         "seconds": round(time.perf_counter() - t0, 1),
-        "machine": f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}",
+        "machine": machine_description(),
     }
     print("correlated", json.dumps(out))
     return out

@@ -812,23 +812,31 @@ def test_fit_kway_gives_the_azimuth_effect_where_scrppl_fit_does(monkeypatch):
 
 
 @pytest.mark.slow
-def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
-    from scrppl.cli import main
+def kway_run_folder(rng, root, cats=("a", "b", "c")) -> list[str]:
+    """A run folder for `scrppl kway`: a random DPM response table of the categories (two fit and two
+    test instances each, 4 azimuths) and a fake hierarchical fit per target; returns the categories."""
     from scrppl.models.io import model_path, save_posterior
-    from scrppl.report import write_report
     from scrppl.responses import empty_response_table, save_response_table
     from scrppl.views import ViewGrid
 
-    cats = ["a", "b", "c"]
-    split = np.array([["fit", "fit", "test", "test"]] * 3)
+    cats = list(cats)
+    split = np.array([["fit", "fit", "test", "test"]] * len(cats))
     table = empty_response_table(["dpm"], cats, cats, 4, ViewGrid(4, (10.0,), (1.0,)), split)
     table["score"].values[:] = rng.normal(size=table["score"].shape)
-    save_response_table(table, tmp_path / "responses.nc")
+    save_response_table(table, root / "responses.nc")
     for t in cats:
         tree = fake_posterior(rng, t, [c for c in cats if c != t])
         meta = json.loads(tree.attrs["meta"])
-        tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=2, categories=cats))
-        save_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t), tree)
+        tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=len(cats) - 1, categories=cats))
+        save_posterior(model_path(root / "models", "hierarchical", "dpm", t), tree)
+    return cats
+
+
+def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
+    from scrppl.cli import main
+    from scrppl.report import write_report
+
+    cats = kway_run_folder(rng, tmp_path)
     argv = [
         "kway",
         "--out",

@@ -218,6 +218,34 @@ def test_errors_name_the_problem(rng):
         KF.update(corr, belief, jnp.full(t, jnp.nan), 0)
 
 
+def test_saved_fits_are_kept_apart_by_kind(tmp_path):
+    """A correlation fit and a per-category fit share one netCDF writer; each refuses the other's file,
+    and a missing or corrupt file is named."""
+    import xarray as xr
+
+    from scrppl.kway.profiles import load_profiles, save_profiles
+
+    tree = xr.DataTree(xr.Dataset({"x": ("draw", np.arange(3.0))}))
+    tree.attrs["kind"] = "profiles"
+    with pytest.raises(ValueError, match="not a cross-detector correlation fit"):
+        CR.save_correlations(tmp_path / "c.nc", tree)
+    save_profiles(tmp_path / "p.nc", tree)
+    with pytest.raises(
+        ValueError, match=r"p.nc is not a cross-detector correlation fit \(kind='profiles'\)"
+    ):
+        CR.load_correlations(tmp_path / "p.nc")
+    tree.attrs["kind"] = "correlations"
+    CR.save_correlations(tmp_path / "c.nc", tree)
+    assert float(CR.load_correlations(tmp_path / "c.nc")["x"].sum()) == 3.0
+    with pytest.raises(ValueError, match="is not a per-category K-way fit"):
+        load_profiles(tmp_path / "c.nc")
+    with pytest.raises(FileNotFoundError, match="per-category K-way fit not found"):
+        load_profiles(tmp_path / "none.nc")
+    (tmp_path / "bad.nc").write_bytes(b"not netcdf")
+    with pytest.raises(ValueError, match="correlation fit .*bad.nc is unreadable"):
+        CR.load_correlations(tmp_path / "bad.nc")
+
+
 def test_experiment_with_the_correlated_filter(rng):
     """The experiment with the correlated filter: with identity correlations (and one draw) its trials
     are those of the instance-aware filter, random and planned views alike."""
@@ -372,21 +400,9 @@ def test_kway_command_with_the_correlated_filter(rng, tmp_path):
 
     from scrppl.cli import main
     from scrppl.kway.study import correlation_path
-    from scrppl.models.io import model_path, save_posterior
-    from scrppl.responses import empty_response_table, save_response_table
-    from scrppl.views import ViewGrid
-    from tests.test_kway import fake_posterior
+    from tests.test_kway import kway_run_folder
 
-    cats = ["a", "b", "c"]
-    split = np.array([["fit", "fit", "test", "test"]] * 3)
-    table = empty_response_table(["dpm"], cats, cats, 4, ViewGrid(4, (10.0,), (1.0,)), split)
-    table["score"].values[:] = rng.normal(size=table["score"].shape)
-    save_response_table(table, tmp_path / "responses.nc")
-    for t in cats:
-        tree = fake_posterior(rng, t, [c for c in cats if c != t])
-        meta = json.loads(tree.attrs["meta"])
-        tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=2, categories=cats))
-        save_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t), tree)
+    cats = kway_run_folder(rng, tmp_path)
     argv = ["kway", "--out", str(tmp_path), "--profile", "quick", "--trials", "6"]
     argv += ["--large-trials", "0", "--n-samples", "8", "--quiet", "--filter", "correlated"]
     argv += ["--accept-diagnostics"]  # six fit rings say little about a 3 x 3 correlation

@@ -170,25 +170,11 @@ class CorrelatedKwayModel(NamedTuple):
     view_corr: jax.Array
     instance_corr: jax.Array
 
-    @property
-    def n_targets(self) -> int:
-        """Number of target detectors ``T``."""
-        return self.mu.shape[0]
-
-    @property
-    def n_draws(self) -> int:
-        """Posterior draws ``N`` (joint over targets)."""
-        return self.mu.shape[1]
-
-    @property
-    def n_classes(self) -> int:
-        """Number of categories ``K``."""
-        return self.mu.shape[2]
-
-    @property
-    def grid_shape(self) -> tuple[int, int, int]:
-        """``(A, E, S)``."""
-        return tuple(self.mu.shape[3:6])
+    # the shapes read as those of a KwayModel
+    n_targets = KwayModel.n_targets
+    n_draws = KwayModel.n_draws
+    n_classes = KwayModel.n_classes
+    grid_shape = KwayModel.grid_shape
 
 
 class CorrelatedBelief(NamedTuple):
@@ -605,28 +591,16 @@ def correlations_from_fit(posterior: xr.DataTree, n_draws: int) -> tuple[np.ndar
 
 def save_correlations(path, posterior: xr.DataTree):
     """Write a correlation fit to netCDF atomically."""
-    from scrppl.models.io import save_posterior
+    from scrppl.models.io import save_fit_of_kind
 
-    if posterior.attrs.get("kind") != "correlations":
-        raise ValueError("not a correlation fit (kind 'correlations')")
-    return save_posterior(path, posterior)
+    return save_fit_of_kind(path, posterior, "correlations", "cross-detector correlation fit")
 
 
 def load_correlations(path) -> xr.DataTree:
     """Load a fit written by :func:`save_correlations` (into memory); a missing or foreign file is named."""
-    from pathlib import Path
+    from scrppl.models.io import load_fit_of_kind
 
-    from scrppl._io import read_netcdf
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"cross-detector correlation fit not found: {path}")
-    tree = read_netcdf(path, "cross-detector correlation fit", tree=True)
-    if tree.attrs.get("kind") != "correlations":
-        raise ValueError(
-            f"{path} is not a cross-detector correlation fit (kind={tree.attrs.get('kind')!r})"
-        )
-    return tree
+    return load_fit_of_kind(path, "correlations", "cross-detector correlation fit")
 
 
 def heldout_ring_lpd(view_corr, instance_corr, stats: RingStats) -> np.ndarray:

@@ -654,27 +654,16 @@ def profiles_path(models_dir, detector: str, target: str):
 
 def save_profiles(path, posterior: xr.DataTree):
     """Write a per-category fit to netCDF atomically."""
-    from scrppl.models.io import save_posterior
+    from scrppl.models.io import save_fit_of_kind
 
-    if posterior.attrs.get("kind") != "profiles":
-        raise ValueError("not a per-category fit (kind 'profiles')")
-    return save_posterior(path, posterior)
+    return save_fit_of_kind(path, posterior, "profiles", "per-category K-way fit")
 
 
 def load_profiles(path) -> xr.DataTree:
     """Load a per-category fit written by :func:`save_profiles` (into memory)."""
-    from pathlib import Path
+    from scrppl.models.io import load_fit_of_kind
 
-    from scrppl._io import read_netcdf
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"per-category K-way fit not found: {path}")
-    tree = read_netcdf(path, "per-category K-way fit", tree=True)
-    if tree.attrs.get("kind") != "profiles":
-        raise ValueError(
-            f"{path} is not a per-category K-way fit (kind={tree.attrs.get('kind')!r})"
-        )
+    tree = load_fit_of_kind(path, "profiles", "per-category K-way fit")
     if json.loads(tree.attrs.get("meta", "{}")).get("model_version") != PROFILE_MODEL_VERSION:
         raise ValueError(
             f"{path} was fitted by another version of the per-category model; refit it"

@@ -42,6 +42,8 @@ __all__ = [
     "save_gaussian",
     "save_posterior",
     "load_posterior",
+    "save_fit_of_kind",
+    "load_fit_of_kind",
     "load_gaussian",
     "load_response_model",
 ]
@@ -182,6 +184,24 @@ def save_posterior(path: str | Path, posterior: xr.DataTree) -> Path:
     with atomic_path(path) as tmp:
         posterior.to_netcdf(tmp, engine="h5netcdf")
     return path
+
+
+def save_fit_of_kind(path: str | Path, posterior: xr.DataTree, kind: str, what: str) -> Path:
+    """:func:`save_posterior` for a fit whose ``kind`` attribute must be ``kind`` (``what`` names it)."""
+    if posterior.attrs.get("kind") != kind:
+        raise ValueError(f"not a {what} (kind {kind!r})")
+    return save_posterior(path, posterior)
+
+
+def load_fit_of_kind(path: str | Path, kind: str, what: str) -> xr.DataTree:
+    """Load a fit written by :func:`save_fit_of_kind` (into memory); a missing or foreign file is named."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} not found: {path}")
+    tree = read_netcdf(path, what, tree=True)
+    if tree.attrs.get("kind") != kind:
+        raise ValueError(f"{path} is not a {what} (kind={tree.attrs.get('kind')!r})")
+    return tree
 
 
 #: How a corrupt model file is regenerated (``scrppl fit`` alone reuses a file newer than its inputs).
