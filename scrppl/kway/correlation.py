@@ -60,25 +60,26 @@ correlated belief.
 Measured
 --------
 ``benchmarks/bench_kway_correlated.py --trials 10000 --planned`` in the paper regime (full profile, seed 0,
-DPM, ten categories, the 30 ``fit`` instances as units; record ``benchmarks/results/kway-correlated.json``):
+DPM, ten categories, the 30 ``fit`` instances as units; record ``benchmarks/results/kway-correlated.json``,
+full runs made on two machines, which differ: key ``full`` a 2-core Intel Xeon, ``full_amd_epyc`` an AMD
+EPYC; the AMD figures in brackets):
 
-* the fit passes the gates at its first attempt (4 x 500 draws, no divergence, R-hat <= 1.007), 43 s on
-  two cores; the view correlations' posterior means range from -0.07 to 0.67 (mean 0.31), the instance
-  correlations average 0.13;
-* held-out joint log predictive density of the 270 ``test`` rings: -5,731 nats with independent
-  detectors, -1,773 with the correlations (-1,793 with the view correlation alone); 266 of the 270 rings
-  are predicted better;
+* the fit passes the gates at its first attempt (4 x 500 draws, no divergence, R-hat <= 1.007), 99 s (43
+  s) on two cores; the view correlations' posterior means range from -0.05 to 0.67 (mean 0.30), the
+  instance correlations average 0.14;
+* held-out joint log predictive density of the 270 ``test`` rings: -5,424 (-5,731) nats with independent
+  detectors, -1,611 (-1,773) with the correlations; 268 (266) of the 270 rings are predicted better;
 * 10,000 K-way trials, random views paired with one-vs-rest on the same views: the independent filter is
-  0.052 *less* accurate than one-vs-rest after one view (0.569 against 0.622), the correlated filter
-  0.031 [0.025, 0.037] *more* (0.653), and more accurate after 2, 4 and 8 views as well (0.031, 0.025,
-  0.018, every interval above zero). Views to p(true) > 0.95: 3.04 with random views (independent
-  detectors 3.65), 2.93 with the collapsed planner (planning - random -0.11 [-0.14, -0.08]). Top-label
-  calibration error after 1, 2, 4 random views 0.049, 0.034, 0.023 (independent 0.084, 0.052, 0.048),
-  class-wise 0.010, 0.007, 0.006: the filter is still over-confident after one view (mean top
-  probability above its accuracy), which a wider noise would fix; the per-detector fits learn their
-  noise from the same few objects their means are fitted to.
-* Cost (``--only-timing``, two cores, medians): one collapsed planning decision (7 candidates, ``M =
-  256``, 8 draws, ``K = 10``) 4.0 ms against 1.1 ms for the independent filter's; one filter update 1.5
+  less accurate than one-vs-rest after one view (-0.036 [-0.043, -0.028]; -0.052) and never ahead; the
+  correlated filter is more accurate after 1, 2 and 4 views (+0.038, +0.038, +0.029; +0.031, +0.031,
+  +0.025, every interval above zero) and not behind after 8 (+0.001 [-0.004, +0.005]; +0.018 [+0.014,
+  +0.021]). Views to p(true) > 0.95: 2.98 (3.04) with random views, independent detectors 3.61 (3.65);
+  planning - random -0.14 [-0.17, -0.11] (-0.11 [-0.14, -0.08]). Top-label calibration error after 1, 2,
+  4 random views 0.045, 0.038, 0.028 (0.049, 0.034, 0.023), independent 0.075, 0.051, 0.048: the filter
+  is still over-confident after one view (mean top probability 0.69 against accuracy 0.64 on 3,000
+  trials), and 32 posterior draws instead of 8 do not change that.
+* Cost (``--only-timing``, two cores, Intel, medians): one collapsed planning decision (7 candidates, ``M =
+  256``, 8 draws, ``K = 10``) 3.1 ms against 0.9 ms for the independent filter's; one filter update 1.7
   ms against 0.3 ms (a ``10 x 10`` Cholesky factor per draw and state).
 """
 
