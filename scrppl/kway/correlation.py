@@ -524,6 +524,7 @@ def fit_correlations(
     import arviz as az
 
     from scrppl.models.diagnostics import diagnose
+    from scrppl.models.fit import RETRY_ACCEPT
     from scrppl.models.mcmc import run_nuts
 
     if config is None:
@@ -545,8 +546,8 @@ def fit_correlations(
         )
         if report["ok"] or not retry:
             break
-        if config.target_accept_prob < 0.99:
-            config = config._replace(target_accept_prob=0.99)
+        if config.target_accept_prob < RETRY_ACCEPT:
+            config = config._replace(target_accept_prob=RETRY_ACCEPT)
         elif config.num_samples == first:
             config = config._replace(
                 num_warmup=2 * config.num_warmup, num_samples=2 * config.num_samples
@@ -806,7 +807,8 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
 
     n_k, n_a = model.mu.shape[2], model.mu.shape[3]
     log_draw = belief.log_evidence - logsumexp(belief.log_evidence, axis=0, keepdims=True)
-    state, draw = _components(key, joint_log_belief(belief), log_draw, n_samples)
+    log_state = joint_log_belief(belief)
+    state, draw = _components(key, log_state, log_draw, n_samples)
     k, theta = state // n_a, state % n_a
     # f = mu + u + e: u from the instance effect's posterior (the same for every candidate, so its
     # Cholesky factors are taken once), e = D_sigma chol(R_e) z from the view noise
@@ -823,7 +825,6 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
         jax.random.normal(key_e, shape, model.mu.dtype),
     )
 
-    log_state = joint_log_belief(belief)
     collapsed = planner == "collapsed"
     if collapsed:
         # the instance effects' share of the collapsed covariance is the same for every candidate
