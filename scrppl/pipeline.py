@@ -56,6 +56,17 @@ class Stage:
     #: what the outputs must also say for the stage to count as done (the fit stage writes its
     #: diagnostics even when a fit fails them; a rerun must not then go on as if it had passed)
     complete: Callable[[], bool] | None = field(default=None, compare=False)
+    #: where a background stage's output goes: it runs in a child process beside the stages after it
+    #: (none of which reads its outputs), at a lower priority, so that it takes the cycles they leave
+    #: idle; :func:`run_stages` waits for it before returning. ``None``: the stage runs in turn, here.
+    background_log: Path | None = None
+    #: ``module:function`` that runs one command line of a background stage in its child process
+    runner: str = "scrppl.cli:main"
+
+    @property
+    def background(self) -> bool:
+        """Whether the stage runs in a child process beside the stages after it."""
+        return self.background_log is not None
 
 
 def is_current(stage: Stage) -> bool:
@@ -169,6 +180,30 @@ def stages(
             (index,),
             (out / "responses.nc",),
         ),
+    ]
+    # the sweep renders new images of a synthetic dataset; the book profile leaves it out (it would add
+    # about two thirds to that run's time), and ch. 9 reads the one recorded from it
+    # (benchmarks/results/sweep-book.nc, benchmarks/record_sweep.py) when the run has none. It needs
+    # only the detectors and the response table, and no later stage reads what it writes: it runs in
+    # the background from the end of the detect stage, beside fit, simulate, kway and decompose, and
+    # takes the cycles they leave idle (their JIT compiles and single-threaded steps)
+    if not existing and profile not in NO_SWEEP_PROFILES:
+        pipeline.append(
+            Stage(
+                "sweep",
+                "scrppl.cli.sweep",
+                # views saved by planning vs random across imaging difficulty, with the run's detectors
+                (("sweep", *where, *outdir, *common),),
+                (out / "responses.nc",),
+                (out / "sweep.nc", out / "sweep-summary.json"),
+                takes_force=True,
+                # a sweep made with other levels, trials or chains than the profile's is rerun (its
+                # cached points at the same levels and settings are reused)
+                complete=lambda: _sweep_made_with(out / "sweep-summary.json", profile),
+                background_log=out / "logs" / "sweep.log",
+            )
+        )
+    pipeline += [
         Stage(
             "fit",
             "scrppl.cli.fit",
@@ -220,35 +255,16 @@ def stages(
             takes_force=True,
         ),
     ]
-    # the sweep renders new images of a synthetic dataset; the book profile leaves it out (it would add
-    # about two thirds to that run's time), and ch. 9 reads the one recorded from it
-    # (benchmarks/results/sweep-book.nc, benchmarks/record_sweep.py) when the run has none
-    if not existing and profile not in NO_SWEEP_PROFILES:
-        pipeline.append(
-            Stage(
-                "sweep",
-                "scrppl.cli.sweep",
-                # views saved by planning vs random across imaging difficulty, with the run's detectors;
-                # chained after kway to stay linear (it reads the detectors and the responses)
-                (("sweep", *where, *outdir, *common),),
-                (out / "kway-trials.nc",),
-                (out / "sweep.nc", out / "sweep-summary.json"),
-                takes_force=True,
-                # a sweep made with other levels, trials or chains than the profile's is rerun (its
-                # cached points at the same levels and settings are reused)
-                complete=lambda: _sweep_made_with(out / "sweep-summary.json", profile),
-            )
-        )
     if profile == "full":
         # where planning gains or loses views (scrppl decompose) on the experiment's trials: random, the
         # paper's planner, the confident planner and the clairvoyant bound; the full run only (the book
-        # profile keeps its time). Last, chained after the previous stage to stay linear.
+        # profile keeps its time). Last; it reads the fits through the experiment's trials.
         pipeline.append(
             Stage(
                 "decompose",
                 "scrppl.cli.decompose",
                 (("decompose", *outdir, *common, "--rows", ",".join(DECOMPOSE_ROWS), "--quiet"),),
-                (pipeline[-1].outputs[0],),
+                (out / "trials.nc",),
                 (out / "decomposition.json", out / "decomposition.md"),
             )
         )
@@ -284,7 +300,11 @@ def run_stages(
     """Run every stage that is not current, in order, stopping at the first failing command.
 
     A stage whose module is not installed is skipped (``"not available"``), as is a current one
-    (:func:`is_current`; ``"up to date"``) unless ``force``.
+    (:func:`is_current`; ``"up to date"``) unless ``force``. A background stage (``stage.background``)
+    starts in a child process (``python -m scrppl.pipeline``, niced by :data:`BACKGROUND_NICENESS`, its
+    output in ``stage.background_log``) and the stages after it go on at once; it is waited for after
+    the last of them, its log lines relayed meanwhile. A failing stage stops the background ones (a
+    rerun resumes them from their caches).
 
     Parameters
     ----------
@@ -299,42 +319,222 @@ def run_stages(
     cpu_seconds
         If given, filled with the CPU seconds (user + system) of each stage that ran: this process's and
         those of its child processes that ended during the stage (the spawned pools of rendering,
-        training and scoring, a local Dask cluster's workers): :func:`cpu_time`.
+        training and scoring, a local Dask cluster's workers): :func:`cpu_time`; a background stage's
+        are its child process's own (and its children's), which no other stage counts.
 
     Returns
     -------
     status
         0, or the exit status of the failing command.
     timings
-        ``{stage name: seconds or "up to date" / "not available"}`` of the stages run so far.
+        ``{stage name: seconds or "up to date" / "not available"}`` of the stages run so far (a background
+        stage's seconds run from its start to its end, beside the stages after it).
     """
     timings: dict[str, float | str] = {}
-    for stage in pipeline:
-        if importlib.util.find_spec(stage.module) is None:
-            log(f"[reproduce] {stage.name}: not available in this version, skipped")
-            timings[stage.name] = "not available"
-            continue
-        if not force and is_current(stage):
-            log(f"[reproduce] {stage.name}: up to date, skipped")
-            timings[stage.name] = "up to date"
-            continue
-        log(f"[reproduce] {stage.name}: running")
-        t0 = time.perf_counter()
-        c0 = cpu_time()
-        for argv in stage.argv:
-            status = run_command(list(argv) + (["--force"] if force and stage.takes_force else []))
+    running: list[_Background] = []
+    try:
+        for stage in pipeline:
+            if importlib.util.find_spec(stage.module) is None:
+                log(f"[reproduce] {stage.name}: not available in this version, skipped")
+                timings[stage.name] = "not available"
+                continue
+            if not force and is_current(stage):
+                log(f"[reproduce] {stage.name}: up to date, skipped")
+                timings[stage.name] = "up to date"
+                continue
+            argvs = [
+                list(argv) + (["--force"] if force and stage.takes_force else [])
+                for argv in stage.argv
+            ]
+            if stage.background:
+                running.append(_Background.start(stage, argvs))
+                log(
+                    f"[reproduce] {stage.name}: running in the background beside the next stages "
+                    f"(its output: {stage.background_log})"
+                )
+                continue
+            log(f"[reproduce] {stage.name}: running")
+            t0 = time.perf_counter()
+            c0 = cpu_time()
+            for argv in argvs:
+                status = run_command(argv)
+                if status:
+                    print(
+                        f"[reproduce] {stage.name} failed (exit {status}): scrppl {' '.join(argv)}",
+                        file=sys.stderr,
+                    )
+                    return status, timings
+            timings[stage.name] = round(time.perf_counter() - t0, 1)
+            cpu = round(cpu_time() - c0, 1)
+            if cpu_seconds is not None:
+                cpu_seconds[stage.name] = cpu
+            log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s ({cpu} CPU-seconds)")
+        while running:
+            job = running.pop(0)
+            log(f"[reproduce] {job.stage.name}: waiting for it (running in the background)")
+            status = job.wait(log)
             if status:
                 print(
-                    f"[reproduce] {stage.name} failed (exit {status}): scrppl {' '.join(argv)}",
+                    f"[reproduce] {job.stage.name} failed (exit {status}) in the background; "
+                    f"its output is in {job.stage.background_log}:\n{job.tail()}",
                     file=sys.stderr,
                 )
                 return status, timings
-        timings[stage.name] = round(time.perf_counter() - t0, 1)
-        cpu = round(cpu_time() - c0, 1)
-        if cpu_seconds is not None:
-            cpu_seconds[stage.name] = cpu
-        log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s ({cpu} CPU-seconds)")
-    return 0, timings
+            timings[job.stage.name] = job.wall
+            if cpu_seconds is not None:
+                cpu_seconds[job.stage.name] = job.cpu
+            log(
+                f"[reproduce] {job.stage.name}: done in {job.wall} s ({job.cpu} CPU-seconds), "
+                "in the background"
+            )
+        return 0, timings
+    finally:
+        for job in running:
+            log(
+                f"[reproduce] {job.stage.name}: stopped (a rerun resumes it); its output is in "
+                f"{job.stage.background_log}"
+            )
+            job.stop()
+
+
+#: How much lower a background stage's priority is (``os.nice``): the stages in turn keep the cores they
+#: use, the background one takes what they leave idle.
+BACKGROUND_NICENESS = 10
+
+
+#: The child process of a background stage.
+_CHILD = "import sys; from scrppl.pipeline import _background_main; sys.exit(_background_main(sys.argv[1]))"
+
+
+class _Background:
+    """A background stage's child process (:func:`run_stages`)."""
+
+    def __init__(self, stage: Stage, proc, record: Path, logfile) -> None:
+        self.stage, self.proc, self.record, self.logfile = stage, proc, record, logfile
+        self.started = time.time()
+        self.wall = self.cpu = 0.0
+        self._relayed = 0
+
+    @classmethod
+    def start(cls, stage: Stage, argvs: list[list[str]]) -> _Background:
+        import json
+        import subprocess
+
+        assert stage.background_log is not None
+        logpath = Path(stage.background_log)
+        logpath.parent.mkdir(parents=True, exist_ok=True)
+        record = logpath.with_suffix(".exit.json")
+        record.unlink(missing_ok=True)
+        spec = {
+            "argvs": argvs,
+            "runner": stage.runner,
+            "nice": BACKGROUND_NICENESS,
+            "record": str(record),
+        }
+        logfile = open(logpath, "w")  # noqa: SIM115 (closed by wait / stop)
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _CHILD, json.dumps(spec)],
+            stdout=logfile,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+        )
+        return cls(stage, proc, record, logfile)
+
+    def _relay(self, log: Callable[[str], None]) -> None:
+        """Log the child's new complete lines that are messages (``[...]``), not progress bars."""
+        try:
+            text = Path(self.stage.background_log).read_text(errors="replace")
+        except OSError:
+            return
+        import re
+
+        end = text.rfind("\n") + 1
+        for line in text[self._relayed : end].splitlines():
+            # a message may follow a progress bar's last update on the same line
+            found = re.search(r"\[[a-z][a-z-]*\] .*", line.rsplit("\r", 1)[-1])
+            if found:
+                log(f"  {found.group(0)}")
+        self._relayed = max(self._relayed, end)
+
+    def wait(self, log: Callable[[str], None]) -> int:
+        """Wait for the child, relaying its messages; fills ``wall`` and ``cpu``; its exit status."""
+        import json
+        import subprocess
+
+        self._relayed = 0
+        c0 = cpu_time()
+        while True:
+            try:
+                status = self.proc.wait(timeout=2.0)
+                break
+            except subprocess.TimeoutExpired:
+                self._relay(log)
+        self._relay(log)
+        self.logfile.close()
+        # the child is reaped: its CPU (with its own children's) is in this process's children's now
+        self.cpu = round(cpu_time() - c0, 1)
+        self.wall = round(time.time() - self.started, 1)
+        try:
+            mine = json.loads(self.record.read_text())
+            self.wall = round(mine["ended"] - self.started, 1)
+            self.cpu = round(mine["cpu"], 1)
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # ended before it wrote its record: the times seen from here
+        return int(status)
+
+    def tail(self, lines: int = 20) -> str:
+        """The last ``lines`` lines of the child's output."""
+        try:
+            text = Path(self.stage.background_log).read_text(errors="replace")
+        except OSError:
+            return ""
+        return "\n".join(x.rsplit("\r", 1)[-1] for x in text.splitlines()[-lines:])
+
+    def stop(self) -> None:
+        """Stop the child (if running) and close its log."""
+        import subprocess
+
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.logfile.close()
+
+
+def _background_main(spec_text: str) -> int:
+    """A background stage's child process: run its command lines in order, record wall and CPU seconds.
+
+    ``spec_text`` is the JSON written by :meth:`_Background.start`: the command lines, the runner
+    (``module:function``), the niceness and where to write ``{"status", "ended", "cpu"}`` (atomically:
+    the time it ended and the CPU seconds of this process and its children).
+    """
+    import importlib
+    import json
+    import os
+
+    from scrppl._io import atomic_path
+
+    spec = json.loads(spec_text)
+    try:
+        os.nice(int(spec.get("nice", 0)))
+    except (
+        OSError
+    ):  # pragma: no cover - a platform without nice: the same work at the same priority
+        pass
+    module, _, name = spec["runner"].partition(":")
+    run = getattr(importlib.import_module(module), name)
+    status = 0
+    for argv in spec["argvs"]:
+        status = int(run(list(argv)) or 0)
+        if status:
+            break
+    record = {"status": status, "ended": time.time(), "cpu": cpu_time()}
+    with atomic_path(spec["record"]) as tmp:
+        Path(tmp).write_text(json.dumps(record))
+    return status
 
 
 def cpu_time() -> float:

@@ -182,20 +182,29 @@ def _section_timings(out: Path) -> str:
         return msg
     cpu = t.get("cpu_seconds") or {}
     machine = t.get("machine") or {}
-    stages = {k: v for k, v in t.items() if k not in ("cpu_seconds", "machine")}
+    background = set(t.get("background") or ())
+    meta = ("cpu_seconds", "machine", "background", "wall_seconds_total")
+    stages = {k: v for k, v in t.items() if k not in meta}
     rows = []
     for k, v in stages.items():
         c = cpu.get(k)
         ratio = c / v if isinstance(v, int | float) and v > 0 and c is not None else None
         rows.append(
             {
-                "stage": k,
+                "stage": f"{k} (background)" if k in background else k,
                 "wall s": _num(v, 1),
                 "CPU s": _num(c, 1) if c is not None else "",
                 "CPU / wall": _num(ratio, 2) if ratio is not None else "",
             }
         )
-    total = sum(float(v) for v in stages.values() if isinstance(v, int | float))
+    # a background stage's seconds overlap the others': the run's own wall time when it was recorded
+    total = t.get("wall_seconds_total")
+    if not isinstance(total, int | float):
+        total = sum(
+            float(v)
+            for k, v in stages.items()
+            if isinstance(v, int | float) and k not in background
+        )
     total_cpu = sum(float(v) for v in cpu.values())
     rows.append(
         {
@@ -209,9 +218,17 @@ def _section_timings(out: Path) -> str:
         f" on {machine.get('cores')} cores ({machine.get('cpu')})" if machine.get("cores") else ""
     )
     cols = ["stage", "wall s", "CPU s", "CPU / wall"] if cpu else ["stage", "wall s"]
+    note = ""
+    if background:
+        names = ", ".join(sorted(background))
+        note = (
+            f"\n\nThe {names} stage ran in the background, at a lower priority, beside the stages after "
+            "it, taking the cycles they left idle: its wall time overlaps theirs, and the total is the "
+            "run's own wall time, not the sum of the stages'."
+        )
     return (
         f"## {title}\n\nWall time and CPU time (user + system, this process and its worker "
-        f"processes) of each stage{where}, from `timings.json`:\n\n" + _md_table(rows, cols)
+        f"processes) of each stage{where}, from `timings.json`:\n\n" + _md_table(rows, cols) + note
     )
 
 

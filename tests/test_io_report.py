@@ -56,9 +56,13 @@ def test_pipeline_stages_chain_outputs_to_inputs(tmp_path):
         root=tmp_path / "data", out=tmp_path / "out", seed=3, profile="quick", strict=True
     )
     chain = stages(args)
-    assert [s.name for s in chain] == ["dataset", "detect", "fit", "simulate", "kway", "sweep"]
-    for before, after in zip(chain, chain[1:], strict=False):
+    assert [s.name for s in chain] == ["dataset", "detect", "sweep", "fit", "simulate", "kway"]
+    # the stages in turn read what the one before them wrote; the sweep (in the background) reads
+    # what detect wrote
+    in_turn = [s for s in chain if not s.background]
+    for before, after in zip(in_turn, in_turn[1:], strict=False):
         assert set(after.inputs) <= set(before.outputs), (before.name, after.name)
+    assert set(chain[2].inputs) <= set(chain[1].outputs) and chain[2].background
     for s in chain:
         for argv in s.argv:
             assert "--seed" in argv and "3" in argv
@@ -236,6 +240,24 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     text = write_report(out, profile="quick", seed=1).read_text()
     assert "| detect | 70.0 | 126.0 | 1.80 |" in text
     assert "| **total** | 100.0 | 159.0 | 1.59 |" in text and "on 2 cores (Test CPU)" in text
+    assert "background" not in text.split("## Stage timings")[1].split("##")[0]
+    # a stage in the background: marked, and the total is the run's own wall time, not the sum
+    (out / "timings.json").write_text(
+        json.dumps(
+            {
+                "detect": 70.0,
+                "sweep": 50.0,
+                "fit": 30.0,
+                "cpu_seconds": {"detect": 126.0, "sweep": 60.0, "fit": 33.0},
+                "machine": {"cores": 2, "cpu": "Test CPU"},
+                "background": ["sweep"],
+                "wall_seconds_total": 110.0,
+            }
+        )
+    )
+    text = write_report(out, profile="quick", seed=1).read_text()
+    assert "| sweep (background) | 50.0 | 60.0 | 1.20 |" in text
+    assert "| **total** | 110.0 | 219.0 | 1.99 |" in text and "not the sum" in text
     # a fit with the instance x azimuth effect (scrppl fit --azimuth-effect auto on several rings)
     diag_path = out / "models" / "diagnostics.json"
     diag = json.loads(diag_path.read_text())
@@ -601,7 +623,8 @@ def test_report_shows_the_decomposition_of_a_full_run_and_says_when_it_did_not_r
     # the full profile's stage runs these rows, last in the pipeline
     args = argparse.Namespace(root=tmp_path / "data", out=out, seed=0, profile="full", strict=True)
     chain = stages(args)
-    assert chain[-1].name == "decompose" and set(chain[-1].inputs) <= set(chain[-2].outputs)
+    simulate = next(s for s in chain if s.name == "simulate")
+    assert chain[-1].name == "decompose" and set(chain[-1].inputs) <= set(simulate.outputs)
     argv = chain[-1].argv[0]
     assert (
         argv[argv.index("--rows") + 1]

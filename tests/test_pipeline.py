@@ -188,7 +188,7 @@ def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tm
     families = want["families"].split(",")
     out = tmp_path / "out"
     out.mkdir()
-    (out / "kway-trials.nc").write_bytes(b"")
+    (out / "responses.nc").write_bytes(b"")
     (out / "sweep.nc").write_bytes(b"")
     summary = out / "sweep-summary.json"
 
@@ -222,3 +222,93 @@ def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tm
     summary.unlink()
     assert not made_with_profile(summary, "quick")
     assert not made_with_profile(out / "sweep-summary.json", "no-such-profile")
+
+
+def _background_stage(tmp_path, name, *script, runner="subprocess:call"):
+    """A background stage whose child runs ``script`` (shell command lines) with ``runner``."""
+    return Stage(
+        name,
+        "scrppl.pipeline",
+        tuple(("sh", "-c", line) for line in script),
+        (),
+        (tmp_path / f"{name}.out",),
+        background_log=tmp_path / "logs" / f"{name}.log",
+        runner=runner,
+    )
+
+
+def test_a_background_stage_runs_beside_the_stages_after_it(tmp_path):
+    """The sweep's way of running: the stages after a background stage go on while it runs (its child
+    waits here for a file that only the next stage writes, so a runner that waited for it first would
+    never end), its messages reach the log, its CPU seconds are its child's and its output is in its
+    log file."""
+    flag, done = tmp_path / "flag", tmp_path / "bg.out"
+    bg = _background_stage(
+        tmp_path,
+        "bg",
+        f"i=0; while [ ! -e {flag} ] && [ $i -lt 600 ]; do sleep 0.05; i=$((i+1)); done; "
+        f"test -e {flag} && echo '[bg] saw the flag' && echo 'a progress bar' "
+        f"&& printf 'bar: 50%%|#  | 1/2 [00:01<00:01]\\r[bg] after a bar\\n' && touch {done}",
+        # some CPU for the record: a busy loop of the child's own
+        "i=0; while [ $i -lt 20000 ]; do i=$((i+1)); done",
+    )
+    nxt = Stage("next", "scrppl.pipeline", (("write",),), (), (tmp_path / "next.out",))
+    calls, lines, cpu = [], [], {}
+
+    def run_command(argv):
+        calls.append(argv)
+        flag.write_text("go")
+        return 0
+
+    status, timings = run_stages([bg, nxt], run_command, log=lines.append, cpu_seconds=cpu)
+    assert status == 0 and calls == [["write"]] and done.exists()
+    assert isinstance(timings["bg"], float) and timings["bg"] >= 0.0
+    assert set(cpu) == {"bg", "next"} and cpu["bg"] > 0.0
+    assert any("bg: running in the background" in line for line in lines)
+    assert any(line.strip() == "[bg] saw the flag" for line in lines)  # relayed
+    assert any(line.strip() == "[bg] after a bar" for line in lines)
+    assert not any("a progress bar" in line for line in lines)  # not a message: left in the log
+    assert "a progress bar" in (tmp_path / "logs" / "bg.log").read_text()
+    order = [i for i, line in enumerate(lines) if "next: done" in line or "bg: done" in line]
+    assert "next: done" in lines[order[0]] and "bg: done" in lines[order[1]]
+
+
+def test_a_failing_background_stage_fails_the_run_and_shows_its_output(tmp_path, capsys):
+    bg = _background_stage(tmp_path, "bg", "echo 'what went wrong'; exit 3", "touch never")
+    status, timings = run_stages([bg], lambda argv: 0, log=lambda msg: None)
+    assert status == 3 and "bg" not in timings
+    err = capsys.readouterr().err
+    assert "bg failed (exit 3) in the background" in err and "what went wrong" in err
+    assert str(tmp_path / "logs" / "bg.log") in err
+
+
+def test_a_failing_stage_stops_the_background_ones(tmp_path):
+    """A run that stops at a failing stage does not leave a background stage running on its own."""
+    import time
+
+    marker = tmp_path / "late"
+    bg = _background_stage(tmp_path, "bg", f"sleep 30; touch {marker}")
+    fail = Stage("fail", "scrppl.pipeline", (("x",),), (), (tmp_path / "none",))
+    lines = []
+    t0 = time.perf_counter()
+    status, _ = run_stages([bg, fail], lambda argv: 4, log=lines.append)
+    assert status == 4 and time.perf_counter() - t0 < 20
+    assert any("bg: stopped (a rerun resumes it)" in line for line in lines)
+    assert not marker.exists()
+
+
+def test_no_stage_reads_what_a_background_stage_writes(tmp_path):
+    """A background stage runs beside the stages after it: none of them may take its outputs as
+    inputs (they could read them half made). The full profile's sweep is one, started after detect."""
+    from scrppl.pipeline import stages
+
+    for profile in ("full", "quick", "book"):
+        pipeline = stages(tmp_path / "data", tmp_path / "out", seed=0, profile=profile)
+        names = [s.name for s in pipeline]
+        background = [s for s in pipeline if s.background]
+        assert [s.name for s in background] == ([] if profile == "book" else ["sweep"])
+        for s in background:
+            assert names.index(s.name) == names.index("detect") + 1
+            later = pipeline[names.index(s.name) + 1 :]
+            assert not set(s.outputs) & {p for t in later for p in t.inputs}
+            assert s.background_log.parent == tmp_path / "out" / "logs"
