@@ -202,6 +202,35 @@ def test_score_dataset_writes_valid_table(toy, trained, tmp_path):
     assert np.all(diff[~np.isnan(diff)] >= 0)
 
 
+def test_scoring_some_splits_gives_the_same_scores_there_and_nan_elsewhere(toy, trained, tmp_path):
+    """`scrppl detect` scores the held-out splits only: those scores are the full table's, bit for bit,
+    the training instance's are NaN, the table says which splits it scored, and a table that scored
+    more is reused while one that scored less is completed."""
+    from scrppl.detectors.scoring import scored_splits
+
+    _, dets = trained
+    full = score_dataset(toy, dets, progress=False)
+    assert scored_splits(full) == ["train", "fit", "test"]
+    path = tmp_path / "responses.nc"
+    some = score_dataset(toy, dets, path=path, progress=False, splits=["test", "fit"])
+    assert scored_splits(some) == ["fit", "test"]
+    train = (some["split"] == "train").values
+    assert train.any() and np.isnan(some["score"].values[:, :, train]).all()
+    np.testing.assert_array_equal(
+        some["score"].values[:, :, ~train], full["score"].values[:, :, ~train]
+    )
+    validate_response_table(load_response_table(path))
+    # the same splits again, or fewer: the table on disk is returned as it is
+    again = score_dataset(toy, dets, path=path, progress=False, splits=["test"])
+    xr.testing.assert_identical(again["score"], some["score"])
+    # more splits than it has: scored again, now with the training instance
+    more = score_dataset(toy, dets, path=path, progress=False)
+    xr.testing.assert_identical(more["score"], full["score"])
+    assert scored_splits(load_response_table(path)) == ["train", "fit", "test"]
+    with pytest.raises(ValueError, match="splits must be some of"):
+        score_dataset(toy, dets, progress=False, splits=["training"])
+
+
 class _FailsOnce(SiftMatcher):
     """A SIFT matcher that raises once, on the first image of one instance, and counts prepare calls."""
 
@@ -390,6 +419,10 @@ def test_cli_detect_end_to_end(toy, tmp_path, capsys):
     assert main(argv) == 0
     table = load_response_table(out / "responses.nc")
     assert list(table["detector"].values) == ["sift", "bof"]
+    # by default the held-out splits only: the training instances' scores are NaN
+    train = (table["split"] == "train").values
+    held = table["score"].values[:, :, ~train]
+    assert np.isnan(table["score"].values[:, :, train]).all() and np.isfinite(held).mean() > 0.9
     quality = json.loads((out / "detectors" / "quality.json").read_text())
     assert set(quality["average_precision"]) == {"sift", "bof"}
     assert quality["split"] == "test"

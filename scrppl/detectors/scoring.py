@@ -21,14 +21,17 @@ every trained detector and every image of a :class:`~scrppl.datasets.core.Multiv
   one task; the detectors are sent to each worker once. An instance counts as finished, and is
   checkpointed, when all its groups are; the numbers are those of a run in process.
 
-Views an instance lacks stay NaN; a ``(detector, target)`` pair absent from ``detectors`` stays NaN too.
+Views an instance lacks stay NaN; a ``(detector, target)`` pair absent from ``detectors`` stays NaN too;
+so do the instances of the splits not asked for (``splits``: ``scrppl detect`` scores only the held-out
+``fit`` and ``test`` instances by default, the training instances' responses being read by nothing
+downstream). The table's ``scored_splits`` attribute (JSON) names the splits scored.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,7 +47,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from scrppl.detectors.base import Detector
     from scrppl.parallel import Executor
 
-__all__ = ["score_dataset", "partial_path", "score_chunk", "response_table_for"]
+__all__ = ["score_dataset", "partial_path", "score_chunk", "response_table_for", "scored_splits"]
 
 Chunk = tuple[str, int]
 
@@ -243,6 +246,16 @@ def _run_cluster(
 
 
 # -- the table ---------------------------------------------------------------------------------------
+def scored_splits(table: xr.Dataset) -> list[str]:
+    """The splits whose instances ``table`` holds scores of.
+
+    Its ``scored_splits`` attribute; every split for a table written before the attribute existed.
+    """
+    from scrppl.responses import SPLITS
+
+    return list(json.loads(table.attrs.get("scored_splits", json.dumps(list(SPLITS)))))
+
+
 def _compatible(old: xr.Dataset, new: xr.Dataset) -> bool:
     for name in ("detector", "target", "category", "instance", "azimuth", "elevation", "scale"):
         if old.sizes.get(name) != new.sizes.get(name):
@@ -283,13 +296,14 @@ def score_dataset(
     overwrite: bool = False,
     checkpoint_seconds: float = 30.0,
     executor: Executor | None = None,
+    splits: Sequence[str] | None = None,
 ) -> xr.Dataset:
     """Score every image of ``dataset`` with every detector: the response table.
 
     Parameters
     ----------
     dataset
-        The multiview dataset (all splits are scored; the split of each instance is recorded).
+        The multiview dataset (the split of each instance is recorded whether or not it is scored).
     detectors
         ``{family: {target: trained Detector}}``. The table's ``detector`` axis follows the order of the
         families, its ``target`` axis is the sorted union of targets.
@@ -311,6 +325,9 @@ def score_dataset(
     executor
         A Dask executor (:func:`scrppl.parallel.executor`) to score on a cluster instead (``workers``
         is then ignored); ``None`` or the in-process executor scores here.
+    splits
+        The splits whose instances are scored (default: every split); the others' scores stay NaN. A
+        table at ``path`` written by the same detectors is reused when it scored at least these.
 
     Returns
     -------
@@ -321,7 +338,7 @@ def score_dataset(
     Raises
     ------
     ValueError
-        For an unknown target category or an empty ``detectors``.
+        For an unknown target category, an empty ``detectors`` or an unknown split in ``splits``.
     RuntimeError
         For an untrained detector (before any work is done).
     """
@@ -344,9 +361,18 @@ def score_dataset(
                 )
             det.require_fitted()
     shape = (len(families), len(targets))
+    from scrppl.responses import SPLITS
+
+    wanted = list(SPLITS) if splits is None else [str(x) for x in splits]
+    unknown = sorted(set(wanted) - set(SPLITS))
+    if unknown or not wanted:
+        raise ValueError(f"splits must be some of {SPLITS}, got {list(splits or [])}")
+    wanted = [x for x in SPLITS if x in wanted]
+    inst = dataset.instances
     chunks: list[Chunk] = [
         (str(c), int(i))
-        for c, i in zip(dataset.instances["category"], dataset.instances["instance"], strict=True)
+        for c, i, sp in zip(inst["category"], inst["instance"], inst["split"], strict=True)
+        if str(sp) in wanted
     ]
     done: list[Chunk] = []
     fingerprint = _fingerprint(detectors)
@@ -360,6 +386,7 @@ def score_dataset(
             old is not None
             and _compatible(old, table)
             and old.attrs.get("detectors") == fingerprint
+            and set(wanted) <= set(scored_splits(old))
         ):
             validate_response_table(old)
             return old  # already scored by these detectors
@@ -376,7 +403,10 @@ def score_dataset(
             and old.attrs.get("detectors") == fingerprint
         ):
             table["score"].values[...] = old["score"].values
-            done = [(str(c), int(i)) for c, i in json.loads(old.attrs.get("finished_chunks", "[]"))]
+            finished = {
+                (str(c), int(i)) for c, i in json.loads(old.attrs.get("finished_chunks", "[]"))
+            }
+            done = [c for c in chunks if c in finished]
     done_set = set(done)
     todo = [c for c in chunks if c not in done_set]
     cat_index = {c: k for k, c in enumerate(table["category"].values.tolist())}
@@ -415,6 +445,7 @@ def score_dataset(
         bar.close()
     table.attrs["families"] = json.dumps(families)
     table.attrs["detectors"] = fingerprint
+    table.attrs["scored_splits"] = json.dumps(wanted)
     validate_response_table(table)
     if path is not None:
         save_response_table(table, path)

@@ -93,8 +93,9 @@ def run_detection(
     max_negatives: int | None = DEFAULT_MAX_NEGATIVES,
     progress: bool = True,
     executor: Executor | None = None,
+    splits: Sequence[str] | None = None,
 ) -> DetectionStudy:
-    """Train every family x target, score the whole dataset and write the quality report.
+    """Train every family x target, score the dataset and write the quality report.
 
     Writes under ``out_dir`` the trained ``detectors/<family>-<target>.npz`` (reused when current),
     ``responses.nc`` (resumable) and ``detectors/quality.json``.
@@ -122,6 +123,9 @@ def run_detection(
     executor
         A Dask executor (:func:`scrppl.parallel.executor`): train (one task per family x target) and score
         (one task per instance x feature group) on a cluster, with the same results; ``None`` runs here.
+    splits
+        The splits whose images are scored (default: every split; ``scrppl detect`` scores ``fit`` and
+        ``test``); the others' scores are NaN (:func:`~scrppl.detectors.scoring.score_dataset`).
 
     Returns
     -------
@@ -151,6 +155,7 @@ def run_detection(
         progress=progress,
         workers=workers,
         executor=executor,
+        splits=splits,
     )
     t2 = time.perf_counter()
     quality = quality_summary(table, "test")
