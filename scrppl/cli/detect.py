@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``detect`` subcommand."""
     p = subparsers.add_parser(
         "detect",
-        help="train detectors and score every image (the response table)",
+        help="train detectors and score the held-out images (the response table)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -6,7 +6,7 @@ Stages (each is also a command of its own):
    its contact sheet. When ``--root`` holds another dataset -- a copy of Savarese et al.'s 3D Object
    Category dataset, or a saved index (:func:`scrppl.datasets.dataset_layout`) -- nothing is generated:
    that dataset is indexed and checked (``scrppl dataset info``) and its contact sheet drawn;
-2. ``detect``   -- train the detectors and score every image (``responses.nc``);
+2. ``detect``   -- train the detectors and score the held-out images (``responses.nc``);
 3. ``fit``      -- the paper's Gaussians and the hierarchical models (``models/``);
 4. ``simulate`` -- the sequential-recognition experiment (``trials.nc``);
 5. ``kway``, ``sweep``, ``decompose`` -- K-way recognition, the difficulty sweep and where planning
