@@ -520,9 +520,7 @@ def _background_main(spec_text: str) -> int:
     spec = json.loads(spec_text)
     try:
         os.nice(int(spec.get("nice", 0)))
-    except (
-        OSError
-    ):  # pragma: no cover - a platform without nice: the same work at the same priority
+    except (OSError, AttributeError):  # pragma: no cover - no os.nice (Windows), or not allowed
         pass
     module, _, name = spec["runner"].partition(":")
     run = getattr(importlib.import_module(module), name)
