@@ -37,7 +37,7 @@ RESULTS = Path(__file__).parent / "results" / "detect-profile.json"
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def module_seconds(stats: pstats.Stats) -> dict[str, float]:
+def function_seconds(stats: pstats.Stats) -> dict[str, float]:
     """Seconds of own time per function of scrppl (per package elsewhere), built-ins' to their callers.
 
     A function's key is ``(file, line, name)``; built-ins have file ``"~"``. A built-in's own time is
@@ -90,7 +90,7 @@ def _profiled(fn):
     result = fn()
     prof.disable()
     cpu = time.process_time() - c0
-    return result, cpu, module_seconds(pstats.Stats(prof))
+    return result, cpu, function_seconds(pstats.Stats(prof))
 
 
 def main(argv=None) -> int:

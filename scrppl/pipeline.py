@@ -301,7 +301,7 @@ def run_stages(
 
     A stage whose module is not installed is skipped (``"not available"``), as is a current one
     (:func:`is_current`; ``"up to date"``) unless ``force``. A background stage (``stage.background``)
-    starts in a child process (``python -m scrppl.pipeline``, niced by :data:`BACKGROUND_NICENESS`, its
+    starts in a child process (:func:`_background_main`, niced by :data:`BACKGROUND_NICENESS`, its
     output in ``stage.background_log``) and the stages after it go on at once; it is waited for after
     the last of them, its log lines relayed meanwhile. A failing stage stops the background ones (a
     rerun resumes them from their caches).

@@ -229,6 +229,8 @@ def test_scoring_some_splits_gives_the_same_scores_there_and_nan_elsewhere(toy, 
     assert scored_splits(load_response_table(path)) == ["train", "fit", "test"]
     with pytest.raises(ValueError, match="splits must be some of"):
         score_dataset(toy, dets, progress=False, splits=["training"])
+    # an unreadable record of what was scored: nothing is trusted, the table is scored again
+    assert scored_splits(some.assign_attrs(scored_splits="[fit")) == []
 
 
 class _FailsOnce(SiftMatcher):
@@ -442,6 +444,11 @@ def test_cli_detect_end_to_end(toy, tmp_path, capsys):
     assert "unknown detector family 'nope'" in capsys.readouterr().err
     assert main([*base, "--families", "sift", "--targets", "dog"]) == 1
     assert "unknown category 'dog'" in capsys.readouterr().err
+    # a misspelt split is refused before anything is trained
+    fresh = ["detect", "--root", str(toy.root), "--out", str(tmp_path / "typo"), "--quiet"]
+    assert main([*fresh, "--score-splits", "fit,tset"]) == 1
+    assert "unknown split(s) ['tset']" in capsys.readouterr().err
+    assert not (tmp_path / "typo" / "detectors").exists()
 
 
 def test_plots_accept_missing_views(toy, trained):

@@ -104,8 +104,16 @@ def handler(args: argparse.Namespace) -> int:
     """Run the detection stage; returns the exit status."""
     from scrppl.detectors.study import run_detection
     from scrppl.detectors.train import DEFAULT_MAX_NEGATIVES
+    from scrppl.responses import SPLITS
 
     out = Path(args.out)
+    # a misspelt split fails here, not after the detectors have been trained
+    splits = None if args.score_splits.strip() == "all" else _split_list(args.score_splits)
+    unknown = sorted(set(splits or ()) - set(SPLITS))
+    if unknown:
+        raise ValueError(
+            f"--score-splits: unknown split(s) {unknown}; the splits are {', '.join(SPLITS)} (or 'all')"
+        )
     dataset = open_dataset_of(args, progress=not args.quiet, out=out)
     max_negatives = DEFAULT_MAX_NEGATIVES if args.max_negatives is None else args.max_negatives
     with open_executor(args) as ex:
@@ -120,7 +128,7 @@ def handler(args: argparse.Namespace) -> int:
             max_negatives=max_negatives,
             progress=not args.quiet,
             executor=ex,
-            splits=None if args.score_splits.strip() == "all" else _split_list(args.score_splits),
+            splits=splits,
         )
     if not args.no_figures:
         from scrppl.plotting.detectors import save_detection_figures

@@ -249,11 +249,16 @@ def _run_cluster(
 def scored_splits(table: xr.Dataset) -> list[str]:
     """The splits whose instances ``table`` holds scores of.
 
-    Its ``scored_splits`` attribute; every split for a table written before the attribute existed.
+    Its ``scored_splits`` attribute; every split for a table written before the attribute existed, none
+    for an attribute that cannot be read (such a table is scored again rather than trusted).
     """
     from scrppl.responses import SPLITS
 
-    return list(json.loads(table.attrs.get("scored_splits", json.dumps(list(SPLITS)))))
+    try:
+        got = json.loads(table.attrs.get("scored_splits", json.dumps(list(SPLITS))))
+    except (TypeError, ValueError):
+        return []
+    return [str(x) for x in got] if isinstance(got, list) else []
 
 
 def _compatible(old: xr.Dataset, new: xr.Dataset) -> bool:
