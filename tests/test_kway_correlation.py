@@ -393,6 +393,23 @@ def test_collapsed_gaussian_is_the_mixture_moments_and_its_density_scipys(rng):
     np.testing.assert_allclose(got, want, atol=2e-4)
 
 
+@pytest.mark.parametrize("lead", [(), (5,), (2, 3, 4)])
+def test_unrolled_inverse_and_cholesky_are_numpys(rng, lead):
+    """The filter's and the planners' batched SPD inverse, log determinant and Cholesky factor against
+    numpy, whatever the batch shape (ill-conditioned members included: eigenvalues down to 1e-3)."""
+    t = 6
+    x = rng.normal(size=(*lead, t, t + 3))
+    a = x @ np.swapaxes(x, -1, -2) / (t + 3) + 1e-3 * np.eye(t)
+    # in float32, as the filter runs; the inverse of a matrix of condition ~1e3 to ~1e3 x rounding
+    inv, logdet = CR.spd_inverse(jnp.asarray(a, jnp.float32))
+    want = np.linalg.inv(a)
+    np.testing.assert_allclose(np.asarray(inv), want, atol=2e-4 * np.abs(want).max())
+    np.testing.assert_allclose(np.asarray(logdet), np.linalg.slogdet(a)[1], atol=1e-4)
+    chol = np.asarray(CR.spd_cholesky(jnp.asarray(a, jnp.float32)))
+    np.testing.assert_allclose(chol, np.linalg.cholesky(a), atol=1e-5)
+    assert inv.shape == a.shape and logdet.shape == lead and chol.shape == a.shape
+
+
 def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     """`scrppl kway --filter correlated` fits the correlations once, saves them beside the binary fits,
     reuses them on a second run, and records them in the summary."""

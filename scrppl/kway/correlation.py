@@ -653,17 +653,12 @@ def update(model: CorrelatedKwayModel, belief: CorrelatedBelief, f, phi, e=0, s=
     sd = jnp.sqrt(jnp.moveaxis(sigma2, 0, -1))
     noise = sd[..., :, None] * model.view_corr[:, None, None] * sd[..., None, :]
     p = belief.u_cov
-    cov = p + noise
-    chol = jnp.linalg.cholesky(cov)
+    inv, logdet = spd_inverse(p + noise)  # S^-1 and log det S
     resid = f - mu - belief.u_mean
-    z = solve_triangular(chol, resid[..., None], lower=True)[..., 0]
     t = f.shape[0]
-    loglik = -0.5 * (
-        jnp.sum(z**2, -1)
-        + 2 * jnp.sum(jnp.log(jnp.diagonal(chol, axis1=-2, axis2=-1)), -1)
-        + t * math.log(2 * math.pi)
-    )
-    x = cho_solve((chol, True), p)  # S^-1 P
+    quad = jnp.einsum("...t,...ts,...s->...", resid, inv, resid)
+    loglik = -0.5 * (quad + logdet + t * math.log(2 * math.pi))
+    x = inv @ p  # S^-1 P
     mean = belief.u_mean + jnp.einsum("...ts,...t->...s", x, resid)  # P S^-1 r
     new = p - p @ x
     new = 0.5 * (new + jnp.swapaxes(new, -1, -2))
@@ -766,16 +761,66 @@ def _log_joint(mix: CorrelatedMixture, f, planner: str):
     return log_state + ll.reshape(f.shape[0], -1)
 
 
+def spd_inverse(a) -> tuple[jax.Array, jax.Array]:
+    """Inverse and log determinant of symmetric positive definite matrices ``(..., T, T)``.
+
+    Gauss-Jordan elimination without pivoting, unrolled over the ``T`` columns and vectorised over the
+    leading axes (moved last, so that every step is one elementwise pass over the whole batch). For a
+    positive definite matrix the pivots are the diagonal of its Cholesky factor squared (Schur
+    complements), all positive, so no pivoting is needed; the log determinant is the sum of their logs.
+    The filter and the planners invert hundreds of ``10 x 10`` matrices per step: LAPACK's per-matrix
+    calls (a Cholesky factor, then two triangular solves) cost several times more on a CPU than this
+    (``benchmarks/results/kway.json``). Equal to ``numpy.linalg.inv`` and ``slogdet`` to rounding
+    (``tests/test_kway_correlation.py``).
+    """
+    n, lead = a.shape[-1], a.shape[:-2]
+    m = jnp.transpose(a.reshape(-1, n, n), (1, 2, 0))  # (T, T, batch)
+    logdet = jnp.zeros(m.shape[2:], m.dtype)
+    for k in range(n):
+        pivot = m[k, k]
+        logdet = logdet + jnp.log(pivot)
+        col = m[:, k]
+        row = m[k, :] / pivot
+        m = m - col[:, None] * row[None, :]
+        m = m.at[k, :].set(row)
+        m = m.at[:, k].set(-col / pivot)
+        m = m.at[k, k].set(1 / pivot)
+    return jnp.transpose(m, (2, 0, 1)).reshape(*lead, n, n), logdet.reshape(lead)
+
+
+def spd_cholesky(a) -> jax.Array:
+    """Lower Cholesky factors of symmetric positive definite matrices ``(..., T, T)``.
+
+    The textbook column algorithm unrolled over the ``T`` columns and vectorised over the batch (moved
+    last), for the same reason as :func:`spd_inverse`: the planner factors one ``T x T`` covariance per
+    sample, and LAPACK's one call per matrix costs more than the arithmetic. Equal to
+    ``numpy.linalg.cholesky`` to rounding.
+    """
+    n, lead = a.shape[-1], a.shape[:-2]
+    m = jnp.transpose(a.reshape(-1, n, n), (1, 2, 0))  # (T, T, batch)
+    cols = []
+    for j in range(n):
+        c = m[j:, j]
+        for k, prev in enumerate(cols):
+            c = c - prev[j - k :] * prev[j - k]
+        d = jnp.sqrt(c[0])
+        cols.append(jnp.concatenate([d[None], c[1:] / d], 0))
+    low = jnp.stack([jnp.pad(c, ((j, 0), (0, 0))) for j, c in enumerate(cols)], 1)
+    return jnp.transpose(low, (2, 0, 1)).reshape(*lead, n, n)
+
+
 def _collapse(w, mean, cov):
     """One Gaussian per state with the mixture's mean and covariance over the draws.
 
     ``w (N, K, A)`` normalised over the draws, ``mean (N, K, A, T)``, ``cov (N, K, A, T, T)`` (or any
     array that broadcasts to it); returns ``(K, A, T)`` and ``(K, A, T, T)``.
     """
-    m = jnp.einsum("nka,nkat->kat", w, mean)
+    # elementwise products summed over the draws: as einsums these become one tiny matrix product per
+    # state, about twice as slow on a CPU
+    m = (w[..., None] * mean).sum(0)
     dev = mean - m
-    spread = jnp.einsum("nkat,nkas->kats", w[..., None] * dev, dev)
-    return m, jnp.einsum("nka,nkats->kats", w, cov) + spread
+    wd = w[..., None] * dev
+    return m, (w[..., None, None] * cov + wd[..., :, None] * dev[..., None, :]).sum(0)
 
 
 def _log_gauss_precision(f, mean, cov):
@@ -790,15 +835,13 @@ def _log_gauss_precision(f, mean, cov):
     """
     t = f.shape[-1]
     m = mean.reshape(-1, t)
-    lc = jnp.linalg.cholesky(cov.reshape(-1, t, t))
-    prec = cho_solve((lc, True), jnp.broadcast_to(jnp.eye(t, dtype=lc.dtype), lc.shape))
+    prec, logdet = spd_inverse(cov.reshape(-1, t, t))
     ref = f.mean(0)
     fc, mc = f - ref, m - ref
     pm = jnp.einsum("sij,sj->si", prec, mc)
     outer = (fc[:, :, None] * fc[:, None, :]).reshape(f.shape[0], t * t)
     quad = outer @ prec.reshape(-1, t * t).T - 2 * fc @ pm.T + jnp.sum(mc * pm, -1)
-    logdet = jnp.sum(jnp.log(jnp.diagonal(lc, axis1=-2, axis2=-1)), -1)  # (S,)
-    return -0.5 * quad - logdet - 0.5 * t * math.log(2 * math.pi)
+    return -0.5 * (quad + logdet + t * math.log(2 * math.pi))
 
 
 def _expected_entropies(key, model, belief, views, n_samples, objective, planner):
@@ -816,7 +859,7 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
     shape = (n_samples, model.mu.shape[0])
     u = belief.u_mean[draw, k, theta] + jnp.einsum(
         "mts,ms->mt",
-        jnp.linalg.cholesky(belief.u_cov[draw, k, theta]),
+        spd_cholesky(belief.u_cov[draw, k, theta]),
         jax.random.normal(key_u, shape, model.mu.dtype),
     )
     z = jnp.einsum(
