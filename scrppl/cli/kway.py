@@ -5,7 +5,9 @@
 ones), reads each target detector's fit K-way (:mod:`scrppl.kway.models`), and runs held-out trials of
 all K categories: the K-way filter with entropy planning (the collapsed planner,
 :data:`scrppl.kway.experiment.DEFAULT_PLANNER`), with random views, and K one-vs-rest binary filters
-(:mod:`scrppl.kway.experiment`), then a large experiment.
+(:mod:`scrppl.kway.experiment`), then a large experiment. The K-way class probabilities are tempered by a
+temperature fitted on random-view trials of the ``fit`` instances (:mod:`scrppl.kway.calibration`;
+``--calibration-trials 0``: the filter's own probabilities).
 
 Writes ``kway/kway-<detector>.nc``, ``kway-trials.nc``, ``kway-trials-large.nc``, ``kway-summary.json``
 and ``figures/kway-accuracy.png``, ``figures/kway-confusion.png``.
@@ -28,6 +30,8 @@ __all__ = ["register", "PROFILE_SETTINGS"]
 #: accuracy fell with further views on the book table. The filters keep all eight; the experiment's
 #: collapsed planner (:data:`scrppl.kway.experiment.DEFAULT_PLANNER`) moment-matches them per target and
 #: state, so a decision costs little more than with one draw (``benchmarks/results/kway.json``).
+#: ``calibration_trials``: random-view trials on the ``fit`` instances from which the temperature of the
+#: K-way class probabilities is fitted (:mod:`scrppl.kway.calibration`); a few seconds with random views.
 PROFILE_SETTINGS = {
     "quick": {
         "trials": 160,
@@ -35,6 +39,7 @@ PROFILE_SETTINGS = {
         "n_samples": 64,
         "max_draws": 2,
         "large_max_draws": 2,
+        "calibration_trials": 160,
     },
     "book": {
         "trials": 160,
@@ -42,6 +47,7 @@ PROFILE_SETTINGS = {
         "n_samples": 128,
         "max_draws": 8,
         "large_max_draws": 8,
+        "calibration_trials": 480,
     },
     "full": {
         "trials": 160,
@@ -49,6 +55,7 @@ PROFILE_SETTINGS = {
         "n_samples": 256,
         "max_draws": 8,
         "large_max_draws": 8,
+        "calibration_trials": 3000,
     },
 }
 
@@ -87,6 +94,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         help="posterior draws per target in the large experiment",
+    )
+    p.add_argument(
+        "--calibration-trials",
+        type=int,
+        default=None,
+        help="random-view trials on the fit instances from which a temperature for the class "
+        "probabilities is fitted and applied (0: the filter's own probabilities)",
     )
     p.add_argument(
         "--objective",

@@ -377,6 +377,7 @@ def run_kway_experiment(
     progress: bool = False,
     log_weight=None,
     planned: bool = True,
+    temperature: float = 1.0,
 ) -> xr.Dataset:
     """Run entropy planning, random views and (given ``binary``) the one-vs-rest baseline on ``trials``.
 
@@ -419,6 +420,12 @@ def run_kway_experiment(
     planned
         Run the ``planning`` method (default); ``False`` runs only random views (and one-vs-rest on
         them), e.g. for a model whose many draws make planning slow.
+    temperature
+        Report the K-way methods' class probabilities tempered, ``p^(1/T)`` normalised
+        (:mod:`scrppl.kway.calibration`; ``T`` fitted on the ``fit`` instances by
+        :func:`~scrppl.kway.calibration.fit_temperature`): their ``p_true``, entropy, views to confidence
+        and ``p_class``. The predicted category, the filter and the planner are unchanged; one-vs-rest is
+        not tempered. Recorded in the ``temperature`` attribute.
 
     Returns
     -------
@@ -429,6 +436,9 @@ def run_kway_experiment(
     check_kway_model(model)
     if filter not in KF.FILTERS:
         raise ValueError(f"unknown filter {filter!r}; expected one of {KF.FILTERS}")
+    from scrppl.kway.calibration import _check_temperature, temper
+
+    temperature = _check_temperature(temperature)
     n_t, _, n_k = model.mu.shape[:3]
     if n_t != n_k:
         raise ValueError(
@@ -469,7 +479,7 @@ def run_kway_experiment(
         from scrppl.models.tails import _check_weights
 
         log_weight = _check_weights(model, log_weight, draw_axis=1)
-    dummy = binary if binary is not None else ResponseModel(*(x[:, :, :2] for x in model))
+    dummy = binary if binary is not None else ResponseModel(*(x[:, :, :2] for x in model[:3]))
     opts = dict(
         filter=filter,
         n_steps=n_steps,
@@ -494,7 +504,7 @@ def run_kway_experiment(
         if m == "one_vs_rest":  # p(present) of the K binary filters, normalised over categories
             p = np.exp(p_ovr - p_ovr.max(-1, keepdims=True))
         else:
-            p = p_kway
+            p = p_kway if temperature == 1.0 else temper(p_kway, temperature)
         met = class_metrics(p, cat)
         met["azimuth"] = views[..., 0]
         met["p_class"] = p / p.sum(-1, keepdims=True)
@@ -532,6 +542,7 @@ def run_kway_experiment(
         "n_draws": int(model.n_draws),
         "weighted_draws": int(log_weight is not None),
         "confidence_threshold": M.CONFIDENCE,
+        "temperature": temperature,
     }
     return xr.Dataset(data, coords=coords, attrs=attrs)
 

@@ -71,6 +71,19 @@ def _experiment(e: dict, label: str) -> str:
                 for m, vals in cal["ece_top"].items()
             )
         )
+        t = cal.get("temperature", 1.0)
+        if t != 1.0 and "ece_top_untempered" in cal:
+            raw = cal["ece_top_untempered"]
+            text += (
+                f" (the K-way probabilities tempered by T = {t:.2f}, fitted on trials of the fit "
+                "instances; untempered: "
+                + "; ".join(
+                    f"{_NAMES.get(m, m)} " + ", ".join(f"{x:.3f}" for x in raw[m])
+                    for m in raw
+                    if m != "one_vs_rest"
+                )
+                + ")"
+            )
     return text + ".\n"
 
 

@@ -119,6 +119,7 @@ def run_kway_study(
     sampler=None,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    calibration_trials: int = 0,
 ) -> KwayStudy:
     """One family's K-way models and experiments.
 
@@ -154,6 +155,10 @@ def run_kway_study(
         NUTS settings for missing fits.
     progress, log
         Progress bars; where progress lines go.
+    calibration_trials
+        Random-view trials on the ``fit`` instances from which a temperature for the K-way class
+        probabilities is fitted (:mod:`scrppl.kway.calibration`) and applied to both experiments;
+        ``0`` (the default) reports the filter's own probabilities.
     """
     from scrppl.models import transforms
     from scrppl.models.io import model_path, save_posterior
@@ -181,6 +186,26 @@ def run_kway_study(
         )
     config = PlannerConfig(objective=objective, n_samples=int(n_samples))
     key = jax.random.key(seed)
+    calibration = None
+    if calibration_trials > 0:
+        calibration = _fit_calibration(
+            jax.random.fold_in(key, 5),
+            fit.model
+            if corr_fit is None
+            else with_correlations(fit.model, *correlations_from_fit(corr_fit, max_draws)),
+            table,
+            detector,
+            int(calibration_trials),
+            filter=filter,
+            transform=trans,
+            categories=categories,
+            progress=progress,
+        )
+        log(
+            f"[kway] {detector}: temperature {calibration['temperature']:.3f} from "
+            f"{calibration_trials} trials on the fit instances"
+        )
+    temperature = 1.0 if calibration is None else calibration["temperature"]
     results = []
     for n, draws, k in ((trials, max_draws, 0), (large_trials, large_max_draws, 1)):
         if n <= 0:
@@ -207,10 +232,13 @@ def run_kway_study(
                 categories=categories,
                 keep_probabilities=True,
                 progress=progress,
+                temperature=temperature,
             )
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
     summary = summary_dict(results[0], results[1], fit.info)
+    if calibration is not None:
+        summary["calibration_fit"] = calibration
     if corr_fit is not None:
         summary["correlations"] = correlation_summary(corr_fit)
     if (
@@ -218,6 +246,49 @@ def run_kway_study(
     ):  # the large experiment's probabilities served its calibration; not saved
         results[1] = results[1].drop_vars("p_class")
     return KwayStudy(fit, results[0], results[1], summary)
+
+
+def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
+    """The temperature fitted on random-view trials of the ``fit`` instances, and what it does there."""
+    from scrppl.kway.calibration import calibration_trials, class_log_loss, fit_temperature
+
+    ds = calibration_trials(key, model, table, detector, n_trials, **opts)
+    p = ds["p_class"].sel({"method": "random"}).values
+    truth = ds["category_index"].values
+    temperature = fit_temperature(p, truth)
+    tempered = ds.copy()
+    tempered["p_class"] = (ds["p_class"].dims, temper_methods(ds, temperature))
+    raw_cal, new_cal = kway_calibration(ds), kway_calibration(tempered)
+    return {
+        "temperature": temperature,
+        "trials": int(n_trials),
+        "split": "fit",
+        "log_loss": {
+            "raw": class_log_loss(p, truth),
+            "tempered": class_log_loss(p, truth, temperature),
+        },
+        "steps": [int(k) for k in raw_cal["step"].values],
+        "ece_top": {
+            "raw": [
+                round(float(x), 4) for x in raw_cal["ece_top"].sel({"method": "random"}).values
+            ],
+            "tempered": [
+                round(float(x), 4) for x in new_cal["ece_top"].sel({"method": "random"}).values
+            ],
+        },
+    }
+
+
+def temper_methods(ds: xr.Dataset, temperature: float) -> np.ndarray:
+    """``ds``'s ``p_class`` with every K-way method's probabilities tempered (one-vs-rest left as it is)."""
+    from scrppl.kway.calibration import temper
+
+    p = ds["p_class"].values.astype(np.float64)
+    out = p.copy()
+    for i, m in enumerate(ds["method"].values.tolist()):
+        if m != "one_vs_rest":
+            out[i] = temper(p[i], temperature)
+    return out
 
 
 def correlation_path(models_dir: str | Path, detector: str) -> Path:
@@ -304,6 +375,7 @@ def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
         cal = kway_calibration(ds)
         out["calibration"] = {
             "steps": [int(k) for k in cal["step"].values],
+            "temperature": float(ds.attrs.get("temperature", 1.0)),
             **{
                 var: {
                     m: [round(float(x), 4) for x in cal[var].sel({"method": m}).values]
@@ -312,6 +384,15 @@ def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
                 for var in ("ece_top", "ece_classwise")
             },
         }
+        temperature = float(ds.attrs.get("temperature", 1.0))
+        if temperature != 1.0:  # the filter's own probabilities, for comparison
+            raw = ds.copy()
+            raw["p_class"] = (ds["p_class"].dims, temper_methods(ds, 1.0 / temperature))
+            rc = kway_calibration(raw)
+            out["calibration"]["ece_top_untempered"] = {
+                m: [round(float(x), 4) for x in rc["ece_top"].sel({"method": m}).values]
+                for m in rc["method"].values.tolist()
+            }
     conf = confusion_matrices(ds, CONFUSION_STEPS)
     out["confusion"] = {
         m: {
