@@ -13,8 +13,9 @@ On a finished run's response table and binary fits (``RESULTS/responses.nc``, ``
   expected calibration error after 1, 2 and 4 views, per held-out instance the share of trials right after
   1 and 8 views, and the seconds each run took.
 
-Writes ``benchmarks/results/kway-correlated.json`` (key ``<profile>``). Run:
-``python benchmarks/bench_kway_correlated.py RESULTS [--trials N] [--draws N] [--cache DIR]``.
+Writes ``benchmarks/results/kway-correlated.json`` (key ``--key``, default the run's profile). Run:
+``python benchmarks/bench_kway_correlated.py RESULTS [--trials N] [--draws N] [--cache DIR]
+[--calibration-trials N] [--key KEY]``.
 """
 
 from __future__ import annotations
@@ -79,6 +80,83 @@ def _timing(model, corr, table, det, repeats: int = 30) -> dict:
     return out
 
 
+def _tempered(args, model, kind, table, det, cats, ds) -> dict:
+    """The temperature fitted on random-view trials of the ``fit`` instances, and the test trials with it.
+
+    :mod:`scrppl.kway.calibration`: ``T`` minimises the log loss of the class probabilities over every
+    number of views of the ``fit`` trials; the same ``T`` then tempers the ``test`` experiment's K-way
+    probabilities (one-vs-rest is left as it is).
+    """
+    from scrppl.kway.calibration import calibration_trials, class_log_loss, fit_temperature
+    from scrppl.kway.experiment import class_metrics, kway_calibration
+    from scrppl.kway.study import temper_methods
+
+    t0 = time.perf_counter()
+    cal = calibration_trials(
+        jax.random.fold_in(jax.random.key(args.seed), 5),
+        model,
+        table,
+        det,
+        args.calibration_trials,
+        filter=kind,
+        categories=cats,
+    )
+    p_fit = cal["p_class"].sel({"method": "random"}).values
+    t_fit = cal["category_index"].values
+    temperature = fit_temperature(p_fit, t_fit)
+    hot = ds.copy()
+    hot["p_class"] = (ds["p_class"].dims, temper_methods(ds, temperature))
+    hot_cal = kway_calibration(hot)
+    fit_raw, fit_hot = (
+        kway_calibration(cal),
+        kway_calibration(
+            cal.assign(p_class=(cal["p_class"].dims, temper_methods(cal, temperature)))
+        ),
+    )
+    methods = [m for m in ds["method"].values.tolist() if m != "one_vs_rest"]
+    truth = ds["category_index"].values
+    return {
+        "temperature": round(temperature, 4),
+        "fit_trials": args.calibration_trials,
+        "seconds": round(time.perf_counter() - t0, 1),
+        "fit_split_ece_top_after_1_2_4": {
+            "raw": [
+                round(float(x), 4) for x in fit_raw["ece_top"].sel({"method": "random"}).values
+            ],
+            "tempered": [
+                round(float(x), 4) for x in fit_hot["ece_top"].sel({"method": "random"}).values
+            ],
+        },
+        "fit_split_log_loss": {
+            "raw": round(class_log_loss(p_fit, t_fit), 4),
+            "tempered": round(class_log_loss(p_fit, t_fit, temperature), 4),
+        },
+        "ece_top_after_1_2_4": {
+            m: [round(float(x), 4) for x in hot_cal["ece_top"].sel({"method": m}).values]
+            for m in methods
+        },
+        "log_loss": {
+            m: round(class_log_loss(hot["p_class"].sel({"method": m}).values, truth), 4)
+            for m in methods
+        },
+        "log_loss_untempered": {
+            m: round(class_log_loss(ds["p_class"].sel({"method": m}).values, truth), 4)
+            for m in methods
+        },
+        "views_to_confidence": {
+            m: round(
+                float(
+                    class_metrics(hot["p_class"].sel({"method": m}).values, truth)[
+                        "views_to_confidence"
+                    ].mean()
+                ),
+                3,
+            )
+            for m in methods
+        },
+    }
+
+
 def main() -> None:
     from scrppl.kway import correlation as CR
     from scrppl.kway.experiment import (
@@ -102,6 +180,13 @@ def main() -> None:
     ap.add_argument(
         "--planned", action="store_true", help="also planned views (the collapsed entropy planner)"
     )
+    ap.add_argument(
+        "--calibration-trials",
+        type=int,
+        default=3000,
+        help="random-view trials on the fit instances for each filter's temperature (0: none)",
+    )
+    ap.add_argument("--key", default=None, help="the record's key (default: the run's profile)")
     ap.add_argument(
         "--only-timing",
         action="store_true",
@@ -157,7 +242,7 @@ def main() -> None:
     print("timing", json.dumps(timing))
     if args.only_timing:
         record = json.loads(RESULTS.read_text())
-        record[str(run.get("profile", "unknown"))]["timing"] = timing
+        record[args.key or str(run.get("profile", "unknown"))]["timing"] = timing
         RESULTS.write_text(json.dumps(record, indent=1) + "\n")
         print(f"wrote {RESULTS}")
         return
@@ -172,7 +257,8 @@ def main() -> None:
         "seed": args.seed,
         "machine": machine_description(),
         "command": "python benchmarks/bench_kway_correlated.py RESULTS --trials "
-        f"{args.trials} --draws {args.draws}" + (" --planned" if args.planned else ""),
+        f"{args.trials} --draws {args.draws} --calibration-trials {args.calibration_trials}"
+        + (" --planned" if args.planned else ""),
         "residual_correlation_moments_fit_split": {
             "view_mean_off_diagonal": round(float(mom["view"][iu].mean()), 3),
             "ring_mean_mean_off_diagonal": round(float(mom["instance"][iu].mean()), 3),
@@ -221,6 +307,10 @@ def main() -> None:
             planned=args.planned,
         )
         seconds = round(time.perf_counter() - t0, 1)
+        tempered = None
+        if args.calibration_trials > 0:
+            tempered = _tempered(args, m, kind, table, det, cats, ds)
+            print(name, "tempered", json.dumps(tempered), flush=True)
         s = summarise_kway(ds)
         d = compare_kway(ds, "random", "one_vs_rest")["accuracy"]
         cal = kway_calibration(ds)
@@ -268,6 +358,7 @@ def main() -> None:
                 for m_ in methods
             },
             "per_instance_random_correct_after_1_and_8": per,
+            "tempered": tempered,
         }
         print(
             name,
@@ -275,7 +366,7 @@ def main() -> None:
             json.dumps(out[name]["random_minus_one_vs_rest"]),
         )
     record = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    record[str(run.get("profile", "unknown"))] = out
+    record[args.key or str(run.get("profile", "unknown"))] = out
     RESULTS.write_text(json.dumps(record, indent=1) + "\n")
     print(f"wrote {RESULTS}")
 
