@@ -117,3 +117,25 @@ def test_kway_command_fits_the_temperature_on_the_fit_instances(rng, tmp_path):
     raw["p_class"] = (ds["p_class"].dims, C.temper(ds["p_class"].values, 1 / t))
     want = kway_calibration(raw)["ece_top"].sel({"method": "random"}).values
     np.testing.assert_allclose(cal["ece_top_untempered"]["random"], want, atol=2e-3)
+
+
+def test_kway_command_without_full_fit_rings_leaves_probabilities_untempered(rng, tmp_path, capsys):
+    """A table where one category's fit instances lack a full ring of responses cannot give calibration
+    trials: the command says so, runs the experiment untempered, and records no temperature."""
+    from scrppl.cli import main
+    from scrppl.responses import load_response_table, save_response_table
+
+    cats = kway_run_folder(rng, tmp_path)
+    table = load_response_table(tmp_path / "responses.nc")
+    fit = np.flatnonzero(table["split"].values[0].astype(str) == "fit")
+    table["score"].values[0, 0, 0, fit, 1] = (
+        np.nan
+    )  # category a: one azimuth missing on every fit ring
+    save_response_table(table, tmp_path / "responses.nc")
+    argv = ["kway", "--out", str(tmp_path), "--profile", "quick", "--trials", "6"]
+    argv += ["--large-trials", "0", "--n-samples", "8", "--calibration-trials", "20"]
+    assert main(argv) == 0
+    assert "left untempered" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "kway-summary.json").read_text())
+    assert "calibration_fit" not in summary and summary["categories"] == cats
+    assert xr.open_dataset(tmp_path / "kway-trials.nc").attrs["temperature"] == 1.0

@@ -187,7 +187,12 @@ def run_kway_study(
     config = PlannerConfig(objective=objective, n_samples=int(n_samples))
     key = jax.random.key(seed)
     calibration = None
-    if calibration_trials > 0:
+    if calibration_trials > 0 and not _has_fit_rings(table, detector, categories, trans):
+        log(
+            f"[kway] {detector}: no fit instance of every category with a full ring of responses; "
+            "the class probabilities are left untempered"
+        )
+    elif calibration_trials > 0:
         calibration = _fit_calibration(
             jax.random.fold_in(key, 5),
             fit.model
@@ -246,6 +251,19 @@ def run_kway_study(
     ):  # the large experiment's probabilities served its calibration; not saved
         results[1] = results[1].drop_vars("p_class")
     return KwayStudy(fit, results[0], results[1], summary)
+
+
+def _has_fit_rings(table, detector, categories, transform) -> bool:
+    """Whether every category has a ``fit`` instance that calibration trials can be drawn from."""
+    from scrppl.kway.experiment import make_kway_trials
+
+    try:
+        make_kway_trials(jax.random.key(0), table, detector, 1, transform=transform, split="fit")
+    except ValueError as err:
+        if "has no 'fit' instance" in str(err):
+            return False
+        raise
+    return True
 
 
 def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
