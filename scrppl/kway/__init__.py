@@ -21,9 +21,13 @@ detectors of one family, and the robot plans where to look to tell the categorie
   pipeline (it predicts held-out responses better but grows overconfident as views accumulate, see its
   docstring);
 * :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
-  binary filters, accuracy, confusion matrices.
+  binary filters, accuracy, confusion matrices;
+* :mod:`scrppl.kway.calibration` -- temperature scaling of the K-way class probabilities, its temperature
+  fitted on random-view trials of the ``fit`` instances (the filter is over-confident after one or two
+  views even there).
 """
 
+from scrppl.kway.calibration import fit_temperature, temper
 from scrppl.kway.correlation import (
     CorrelatedBelief,
     CorrelatedKwayModel,
@@ -104,4 +108,6 @@ __all__ = [
     "fit_correlations",
     "correlations_from_fit",
     "with_correlations",
+    "temper",
+    "fit_temperature",
 ]
