@@ -1,8 +1,8 @@
 """Checks for the exercises of chapter 11 (which object is it?): K-way recognition.
 
 The naive-Bayes K-way update with posterior draws and instance effects, the collapse of a mixture over
-posterior draws into one Gaussian (the planner's collapsed update), and the one-vs-rest baseline of ``K``
-binary filters. The references are :mod:`scrppl.kway` and :mod:`scrppl.belief`; the inputs are small
+posterior draws into one Gaussian (the planner's collapsed update), the one-vs-rest baseline of ``K``
+binary filters, what correlated views are worth, and the log loss of tempered class probabilities. The references are :mod:`scrppl.kway` and :mod:`scrppl.belief`; the inputs are small
 random K-way models (:class:`~scrppl.kway.models.KwayModel`) built here from fixed seeds.
 """
 
@@ -24,6 +24,7 @@ __all__ = [
     "check_11_2",
     "check_11_3",
     "check_11_4",
+    "check_11_5",
     "random_kway_model",
     "binary_from_kway",
     "one_vs_rest_reference",
@@ -546,3 +547,91 @@ def check_11_4(information) -> str:
         convert=lambda x: float(x) if np.ndim(x) == 0 else x,
     )
     return f"agrees with the correlated model's Woodbury marginal on {n} inputs"
+
+
+# -- 11.5 tempering the filter's confidence ---------------------------------------------------------
+def _tempered_ref(p_class, category, temperature):
+    """The library's :func:`scrppl.kway.calibration.class_log_loss`."""
+    from scrppl.kway.calibration import class_log_loss
+
+    return class_log_loss(p_class, category, temperature)
+
+
+def _tempered_wrong(p_class, category, temperature, *, how):
+    p = np.asarray(p_class, float)
+    category = np.asarray(category).astype(int)
+    p = p**temperature if how == "power_t" else p ** (1.0 / temperature)
+    if how != "unnormalised":
+        p = p / p.sum(-1, keepdims=True)
+    if how == "top":
+        chosen = p.max(-1)
+    else:
+        chosen = np.take_along_axis(p, category[:, None, None], axis=-1)[..., 0]
+    if how == "log_of_mean":
+        return float(-np.log(chosen.mean()))
+    return float(-np.log(chosen).mean())
+
+
+_TEMPERED_MISTAKES = [
+    Mistake(
+        "tempering raises each probability to the power 1 / T (T > 1 flattens), not T.",
+        partial(_tempered_wrong, how="power_t"),
+    ),
+    Mistake(
+        "after raising the probabilities to the power 1 / T, normalise them over the categories again.",
+        partial(_tempered_wrong, how="unnormalised"),
+    ),
+    Mistake(
+        "the log loss is the mean of -log p(true category) over trials and views, not -log of the mean "
+        "probability.",
+        partial(_tempered_wrong, how="log_of_mean"),
+    ),
+    Mistake(
+        "score the probability of the *true* category (category[r]), not the largest one: the log loss "
+        "punishes confident wrong answers.",
+        partial(_tempered_wrong, how="top"),
+    ),
+]
+
+
+def _tempered_cases() -> list[Case]:
+    out = []
+    for seed, r, n_steps, k, t, label in (
+        (1, 6, 3, 4, 1.0, "T = 1: the log loss of the probabilities as they are"),
+        (2, 8, 2, 3, 2.5, "T = 2.5, three categories"),
+        (3, 5, 4, 5, 0.6, "T = 0.6 (sharpening), five categories"),
+        (4, 12, 1, 10, 1.7, "one view, ten categories, T = 1.7"),
+    ):
+        rng = np.random.default_rng([seed, 115])
+        p = rng.dirichlet(np.full(k, 0.7), size=(r, n_steps))
+        category = rng.integers(0, k, size=r)
+        out.append(Case((p, category, t), label))
+    return out
+
+
+@exercise(
+    "11.5",
+    "Tempering the filter's confidence",
+    "medium",
+    reference=lambda: (_tempered_ref,),
+    wrong=lambda: [(m.fn,) for m in _TEMPERED_MISTAKES[:2]],
+)
+def check_11_5(tempered_log_loss) -> str:
+    """Check exercise 11.5.
+
+    Compares ``tempered_log_loss(p_class, category, temperature)`` with
+    :func:`scrppl.kway.calibration.class_log_loss`.
+    """
+    n = check_function(
+        tempered_log_loss,
+        _tempered_ref,
+        _tempered_cases(),
+        name="tempered_log_loss(p_class, category, temperature)",
+        rtol=1e-6,
+        atol=1e-9,
+        mistakes=_TEMPERED_MISTAKES,
+        hint="q = p ** (1 / T), normalised over the last axis; pick q[r, s, category[r]] for every trial r "
+        "and view s; return the mean of -log of those.",
+        convert=lambda x: float(x) if np.ndim(x) == 0 else x,
+    )
+    return f"agrees with scrppl.kway.calibration.class_log_loss on {n} inputs"
