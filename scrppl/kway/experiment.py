@@ -65,7 +65,7 @@ METHODS = ("planning", "random", "one_vs_rest")
 ENTROPY_PLANNERS = ("sampled", "collapsed")
 #: The ``planning`` method's planner: ``"collapsed"``, the expected entropy with the moment-matched
 #: posterior update (:mod:`scrppl.kway.planning`). Why: with eight posterior draws per target the exact
-#: ``"sampled"`` planner needs over ten milliseconds per decision, the collapsed one under one
+#: ``"sampled"`` planner needs 7-13 milliseconds per decision on two cores, the collapsed one under one
 #: (``benchmarks/results/kway.json``, ``decisions``); on the beliefs of the book profile's trials its
 #: expected entropies lie within about ``2e-4`` nats of the exact ones (``approximation``); and the book
 #: profile's experiment run with each planner on the same trials gave the same accuracy after 1, 2, 4 and 8

@@ -25,7 +25,7 @@ here; the brute-force reference of the tests is Monte Carlo with very many sampl
 
 The exact estimator is slow when the predictive keeps several posterior draws per target: every term of
 ``log p(f | k, theta)`` is then a log-sum-exp over the ``N`` draws, so one candidate costs ``M T N K A``
-exponentials (``256 x 10 x 8 x 80 ≈ 1.6 M``, 13 M for 8 candidates: 10-13 ms per decision on two cores,
+exponentials (``256 x 10 x 8 x 80 ≈ 1.6 M``, 13 M for 8 candidates: 7-13 ms per decision on two cores,
 ``benchmarks/results/kway.json``). The **collapsed** planner replaces, per target and state, the mixture
 over the draws by the one Gaussian with the same mean and variance (moment matching,
 :func:`collapse_mixture`):
