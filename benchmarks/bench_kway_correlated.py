@@ -87,9 +87,13 @@ def _tempered(args, model, kind, table, det, cats, ds) -> dict:
     number of views of the ``fit`` trials; the same ``T`` then tempers the ``test`` experiment's K-way
     probabilities (one-vs-rest is left as it is).
     """
-    from scrppl.kway.calibration import calibration_trials, class_log_loss, fit_temperature
+    from scrppl.kway.calibration import (
+        calibration_trials,
+        class_log_loss,
+        fit_temperature,
+        temper_methods,
+    )
     from scrppl.kway.experiment import class_metrics, kway_calibration
-    from scrppl.kway.study import temper_methods
 
     t0 = time.perf_counter()
     cal = calibration_trials(

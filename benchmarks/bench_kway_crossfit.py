@@ -38,10 +38,14 @@ RESULTS = Path(__file__).parent / "results" / "kway-correlated.json"
 def main() -> None:
     from scrppl.cli.fit import N_CHAINS, PROFILE_DRAWS
     from scrppl.kway import correlation as CR
-    from scrppl.kway.calibration import calibration_trials, class_log_loss, fit_temperature
+    from scrppl.kway.calibration import (
+        calibration_trials,
+        class_log_loss,
+        fit_temperature,
+        temper_methods,
+    )
     from scrppl.kway.experiment import kway_calibration, make_kway_trials, run_kway_experiment
     from scrppl.kway.models import fit_kway, kway_from_fits
-    from scrppl.kway.study import temper_methods
     from scrppl.models.mcmc import SamplerConfig
     from scrppl.models.transforms import apply as transform_apply
 

@@ -34,6 +34,10 @@ def test_temper_keeps_the_ranking_and_undoes_itself(rng):
             C.temper(p, bad)
     with pytest.raises(ValueError, match="non-negative"):
         C.temper(-p, 1.0)
+    zero = p.copy()
+    zero[1, 2] = 0.0
+    with pytest.raises(ValueError, match="all zero"):
+        C.temper(zero, 1.5)
 
 
 def test_log_loss_by_hand(rng):
@@ -134,8 +138,14 @@ def test_kway_command_without_full_fit_rings_leaves_probabilities_untempered(rng
     save_response_table(table, tmp_path / "responses.nc")
     argv = ["kway", "--out", str(tmp_path), "--profile", "quick", "--trials", "6"]
     argv += ["--large-trials", "0", "--n-samples", "8", "--calibration-trials", "20"]
+    from scrppl.kway.experiment import categories_without_trials, make_kway_trials
+
+    assert categories_without_trials(table, "dpm", split="fit") == ["a"]
+    assert categories_without_trials(table, "dpm", split="test") == []
+    with pytest.raises(ValueError, match="category 'a' has no 'fit' instance"):
+        make_kway_trials(jax.random.key(0), table, "dpm", 3, split="fit")
     assert main(argv) == 0
-    assert "left untempered" in capsys.readouterr().out
+    assert "no fit instance of ['a']" in capsys.readouterr().out
     summary = json.loads((tmp_path / "kway-summary.json").read_text())
     assert "calibration_fit" not in summary and summary["categories"] == cats
     assert xr.open_dataset(tmp_path / "kway-trials.nc").attrs["temperature"] == 1.0

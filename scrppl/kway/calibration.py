@@ -50,6 +50,7 @@ import numpy as np
 __all__ = [
     "TEMPERATURE_BOUNDS",
     "temper",
+    "temper_methods",
     "class_log_loss",
     "fit_temperature",
     "calibration_trials",
@@ -75,11 +76,28 @@ def temper(p, temperature: float) -> np.ndarray:
     p = np.asarray(p, np.float64)
     if np.any(p < 0) or not np.all(np.isfinite(p)):
         raise ValueError("class probabilities must be finite and non-negative")
+    if np.any(p.max(-1) == 0):
+        raise ValueError(
+            "every set of class probabilities needs a positive entry (a row is all zero)"
+        )
     with np.errstate(divide="ignore"):
         logp = np.log(p) / t
     logp = logp - np.max(logp, axis=-1, keepdims=True)
     q = np.exp(logp)
     return q / q.sum(-1, keepdims=True)
+
+
+def temper_methods(ds, temperature: float) -> np.ndarray:
+    """An experiment's ``p_class`` ``(method, trial, step, category)``, K-way methods tempered.
+
+    One-vs-rest (not a posterior) is left as it is; ``1 / T`` undoes ``T``.
+    """
+    p = ds["p_class"].values.astype(np.float64)
+    out = p.copy()
+    for i, m in enumerate(ds["method"].values.tolist()):
+        if m != "one_vs_rest":
+            out[i] = temper(p[i], temperature)
+    return out
 
 
 def class_log_loss(p_class, category, temperature: float = 1.0) -> float:

@@ -52,6 +52,7 @@ __all__ = [
     "make_kway_trials",
     "run_kway_experiment",
     "class_metrics",
+    "categories_without_trials",
     "summarise_kway",
     "compare_kway",
     "confusion_matrices",
@@ -147,9 +148,7 @@ def make_kway_trials(
             f"K-way trials need a target detector for every category; none for {missing}"
         )
     score = np.stack([transformed_scores(table, detector, t, transform) for t in categories])
-    present = ~np.isnan(score).any(axis=0)  # (C, I, A, E, S): every target responded
-    complete = present.all(axis=2)  # (C, I, E, S): a full azimuth ring
-    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
+    present, complete, usable = _usable(score, table, split)
     for c, name in enumerate(categories):
         if not usable[c].any():
             raise ValueError(
@@ -180,6 +179,31 @@ def make_kway_trials(
         jnp.asarray(pose),
         jnp.asarray(np.c_[phi0, ring].astype(np.int32)),
     )
+
+
+def _usable(score, table, split):
+    """Masks of ``score`` ``(T, C, I, A, E, S)``: where trials can come from.
+
+    Every target responded ``(C, I, A, E, S)``; a full azimuth ring ``(C, I, E, S)``; the instances of
+    ``split`` with at least one such ring ``(C, I)``.
+    """
+    present = ~np.isnan(score).any(axis=0)
+    complete = present.all(axis=2)
+    usable = (table["split"].values.astype(str) == split) & complete.any(axis=(2, 3))
+    return present, complete, usable
+
+
+def categories_without_trials(
+    table: xr.Dataset, detector: str, *, transform=None, split: str = "test"
+) -> list[str]:
+    """The categories with no ``split`` instance :func:`make_kway_trials` can draw a trial from.
+
+    Such an instance has every target's response on a full azimuth ring; empty when trials can be made.
+    """
+    categories = [str(c) for c in table["category"].values]
+    score = np.stack([transformed_scores(table, detector, t, transform) for t in categories])
+    usable = _usable(score, table, split)[2]
+    return [name for c, name in enumerate(categories) if not usable[c].any()]
 
 
 # ------------------------------------------------------------------------------------------------

@@ -29,6 +29,7 @@ from scrppl.kway.correlation import (
 from scrppl.kway.experiment import (
     CONFUSION_STEPS,
     DEFAULT_PLANNER,
+    categories_without_trials,
     compare_kway,
     confusion_matrices,
     kway_calibration,
@@ -187,10 +188,15 @@ def run_kway_study(
     config = PlannerConfig(objective=objective, n_samples=int(n_samples))
     key = jax.random.key(seed)
     calibration = None
-    if calibration_trials > 0 and not _has_fit_rings(table, detector, categories, trans):
+    lacking = (
+        categories_without_trials(table, detector, transform=trans, split="fit")
+        if calibration_trials > 0
+        else []
+    )
+    if lacking:
         log(
-            f"[kway] {detector}: no fit instance of every category with a full ring of responses; "
-            "the class probabilities are left untempered"
+            f"[kway] {detector}: no fit instance of {lacking} with a full ring of responses; the "
+            "class probabilities are left untempered"
         )
     elif calibration_trials > 0:
         calibration = _fit_calibration(
@@ -253,22 +259,14 @@ def run_kway_study(
     return KwayStudy(fit, results[0], results[1], summary)
 
 
-def _has_fit_rings(table, detector, categories, transform) -> bool:
-    """Whether every category has a ``fit`` instance that calibration trials can be drawn from."""
-    from scrppl.kway.experiment import make_kway_trials
-
-    try:
-        make_kway_trials(jax.random.key(0), table, detector, 1, transform=transform, split="fit")
-    except ValueError as err:
-        if "has no 'fit' instance" in str(err):
-            return False
-        raise
-    return True
-
-
 def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
     """The temperature fitted on random-view trials of the ``fit`` instances, and what it does there."""
-    from scrppl.kway.calibration import calibration_trials, class_log_loss, fit_temperature
+    from scrppl.kway.calibration import (
+        calibration_trials,
+        class_log_loss,
+        fit_temperature,
+        temper_methods,
+    )
 
     ds = calibration_trials(key, model, table, detector, n_trials, **opts)
     p = ds["p_class"].sel({"method": "random"}).values
@@ -295,18 +293,6 @@ def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
             ],
         },
     }
-
-
-def temper_methods(ds: xr.Dataset, temperature: float) -> np.ndarray:
-    """``ds``'s ``p_class`` with every K-way method's probabilities tempered (one-vs-rest left as it is)."""
-    from scrppl.kway.calibration import temper
-
-    p = ds["p_class"].values.astype(np.float64)
-    out = p.copy()
-    for i, m in enumerate(ds["method"].values.tolist()):
-        if m != "one_vs_rest":
-            out[i] = temper(p[i], temperature)
-    return out
 
 
 def correlation_path(models_dir: str | Path, detector: str) -> Path:
@@ -404,6 +390,8 @@ def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
         }
         temperature = float(ds.attrs.get("temperature", 1.0))
         if temperature != 1.0:  # the filter's own probabilities, for comparison
+            from scrppl.kway.calibration import temper_methods
+
             raw = ds.copy()
             raw["p_class"] = (ds["p_class"].dims, temper_methods(ds, 1.0 / temperature))
             rc = kway_calibration(raw)
