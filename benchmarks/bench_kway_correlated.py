@@ -39,8 +39,9 @@ STEPS = (1, 2, 4, 8)
 def _timing(model, corr, table, det, repeats: int = 30) -> dict:
     """Median milliseconds of one collapsed planning decision and of one filter update, both filters.
 
-    After one view of a held-out object; every other azimuth of its ring a candidate, ``M = 256``. Timed
-    on the cores this process may use (``taskset -c 0`` for one core).
+    After one view of a held-out object; every other azimuth of its ring a candidate, ``M = 256``: the
+    experiment's :func:`scrppl.kway.planning.choose_view`. Timed on the cores this process may use
+    (``taskset -c 0`` for one core).
     """
     import jax.numpy as jnp
 
@@ -51,7 +52,6 @@ def _timing(model, corr, table, det, repeats: int = 30) -> dict:
     tr = make_kway_trials(jax.random.key(7), table, det, 1)
     f = tr.responses[0]  # (T, A, E, S)
     n_a = model.mu.shape[3]
-    views = jnp.asarray([[v, 0, 0] for v in range(1, n_a)])
     import os
 
     out = {
@@ -60,15 +60,22 @@ def _timing(model, corr, table, det, repeats: int = 30) -> dict:
         "draws": int(model.mu.shape[1]),
         "cores_used": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
     }
+    from scrppl.planning import PlannerConfig
+
+    config = PlannerConfig(planner="collapsed", objective="class", n_samples=256)
+    current = jnp.asarray([0, 0, 0])
+    visited = jnp.zeros(model.grid_shape, bool).at[0, 0, 0].set(True)
+    available = jnp.ones(model.grid_shape, bool)
     for name, m, kind in (("independent", model, "instance"), ("correlated", corr, "correlated")):
         b = KF.update(m, KF.init_belief(kind, m), f[:, 0, 0, 0], 0)
-        decide = jax.jit(
-            lambda k, b, m=m: KP._expected_entropies(k, m, b, views, 256, "class", "collapsed")
+        # the experiment's decision: choose_view, the model an argument as in the trials' scan
+        decide = lambda k, b, m=m: KP.choose_view(  # noqa: E731
+            k, m, b, current, visited, available, config
         )
-        upd = jax.jit(lambda b, x, m=m: KF.update(m, b, x, 1))
+        upd = jax.jit(lambda b, x, m: KF.update(m, b, x, 1))
         for label, fn, args in (
-            ("decision_ms", decide, lambda i, b=b: (jax.random.key(i), b)),
-            ("update_ms", upd, lambda i, b=b: (b, f[:, 1, 0, 0])),
+            ("decision_ms", decide, lambda i, b=b, m=m: (jax.random.key(i), b, m)),
+            ("update_ms", upd, lambda i, b=b, m=m: (b, f[:, 1, 0, 0], m)),
         ):
             jax.block_until_ready(fn(*args(0)))
             times = []

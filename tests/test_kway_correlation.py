@@ -364,6 +364,65 @@ def test_collapsed_planner_is_the_exact_one_with_one_draw(rng):
     np.testing.assert_allclose(got["collapsed"], got["sampled"], atol=1e-5)
 
 
+@pytest.mark.parametrize("objective", ["class", "joint", "pose"])
+def test_ring_planner_is_the_per_candidate_collapsed_planner(rng, objective):
+    """The azimuth ring's table (every candidate from one set of products over the draws) against the
+    collapsed planner candidate by candidate, on the same samples: several draws, elevations and
+    scales, the robot away from azimuth 0, a belief after views at other heights."""
+    t, n, k, a, e, s = 3, 3, 3, 5, 2, 2
+    mu = rng.normal(0.0, 1.5, size=(t, n, k, a, e, s))
+    sigma = rng.uniform(0.5, 1.2, size=mu.shape)
+    tau = rng.uniform(0.3, 0.8, size=(t, n, k))
+    model = KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    ce = np.stack([random_corr(rng, t) for _ in range(n)])
+    cu = np.stack([random_corr(rng, t) for _ in range(n)])
+    corr = CR.with_correlations(model, ce, cu)
+    belief = CR.init_belief(corr)
+    for phi, ev, sv in ((0, 0, 1), (3, 1, 1)):
+        belief = CR.update(
+            corr, belief, jnp.asarray(rng.normal(0, 2, size=t), jnp.float32), phi, ev, sv
+        )
+    for current in ((3, 1, 1), (2, 0, 1), (4, 1, 0)):
+        views = jnp.asarray([[v, current[1], current[2]] for v in range(a)])
+        key = jax.random.key(int(rng.integers(1 << 30)))
+        want = np.asarray(
+            CR._expected_entropies(key, corr, belief, views, 64, objective, "collapsed")
+        )
+        got = np.asarray(
+            CR._ring_expected_entropies(key, corr, belief, jnp.asarray(current), 64, objective)
+        )
+        others = np.arange(a) != current[0]
+        assert np.isinf(got[current[0]])  # the current azimuth is not scored
+        np.testing.assert_allclose(got[others], want[others], rtol=1e-4, atol=1e-5)
+    # choose_view takes the ring's path in azimuth mode and the per-candidate one otherwise: the
+    # same view either way
+    visited = np.zeros((a, e, s), bool)
+    visited[[0, 3], [0, 1], [1, 1]] = True
+    available = np.ones((a, e, s), bool)
+    for mode in ("azimuth", "all"):
+        view, found, scores = KP.choose_view(
+            jax.random.key(9),
+            corr,
+            belief,
+            np.array([3, 1, 1]),
+            visited,
+            available,
+            PlannerConfig(planner="collapsed", objective=objective, n_samples=64, mode=mode),
+        )
+        assert bool(found)
+        if mode == "azimuth":
+            ring_view, ring_scores = np.asarray(view), np.asarray(scores)
+        else:
+            same_ring = np.asarray(scores).reshape(a, e, s)[:, 1, 1]
+            np.testing.assert_allclose(
+                same_ring[np.isfinite(ring_scores)],
+                ring_scores[np.isfinite(ring_scores)],
+                rtol=1e-4,
+            )
+    assert ring_view[1:].tolist() == [1, 1]
+    assert int(ring_view[0]) == int(np.argmin(ring_scores))
+
+
 def test_collapsed_gaussian_is_the_mixture_moments_and_its_density_scipys(rng):
     """The collapsed planner's pieces against numpy and scipy: the law of total variance over the
     draws, and the density through the precision's triangle against the multivariate normal."""

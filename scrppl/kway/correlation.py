@@ -55,7 +55,9 @@ Planning
 numbers of :mod:`scrppl.kway.planning` (the same states and standard normals for every candidate):
 ``"sampled"`` scores each sample by the exact mixture, ``"collapsed"`` by one Gaussian per state with
 the mixture's mean and covariance. :func:`scrppl.kway.planning.choose_view` dispatches to them for a
-correlated belief.
+correlated belief; for the collapsed planner over the azimuths of the current ring (the experiment's
+setting) it builds the collapsed Gaussians of every candidate at once, as one table over category, pose
+and relative azimuth (:func:`_ring_expected_entropies`).
 
 Measured
 --------
@@ -850,30 +852,42 @@ def _log_gauss_precision(f, mean, cov):
     return -0.5 * (quad + logdet + t * math.log(2 * math.pi))
 
 
-def _expected_entropies(key, model, belief, views, n_samples, objective, planner):
-    """Sampled expected posterior entropy of each candidate view ``(C, 3)`` (:func:`expected_entropies`)."""
-    from scrppl.kway.planning import _entropy
+def _samples(key, model, belief, n_samples):
+    """The planners' random part: ``M`` states, draws and response offsets, the same for every candidate.
 
-    n_k, n_a = model.mu.shape[2], model.mu.shape[3]
+    Returns ``k, theta, draw`` ``(M,)``, the instance effect ``u`` ``(M, T)`` drawn from its posterior
+    given the sample's draw and state, the standardised view noise ``z = chol(R_e[draw]) epsilon`` ``(M, T)``
+    (a candidate's response is then ``mu + u + sigma * z``), ``log_state`` ``(K, A)`` and ``log_draw``
+    ``(N, K, A)``.
+    """
+    n_t, n_n, n_a = model.mu.shape[0], model.mu.shape[1], model.mu.shape[3]
     log_draw = belief.log_evidence - logsumexp(belief.log_evidence, axis=0, keepdims=True)
     log_state = joint_log_belief(belief)
     state, draw = _components(key, log_state, log_draw, n_samples)
     k, theta = state // n_a, state % n_a
-    # f = mu + u + e: u from the instance effect's posterior (the same for every candidate, so its
-    # Cholesky factors are taken once), e = D_sigma chol(R_e) z from the view noise
     key_u, key_e = jax.random.split(jax.random.fold_in(key, 1))
-    shape = (n_samples, model.mu.shape[0])
+    shape = (n_samples, n_t)
     u = belief.u_mean[draw, k, theta] + jnp.einsum(
         "mts,ms->mt",
         spd_cholesky(belief.u_cov[draw, k, theta]),
         jax.random.normal(key_u, shape, model.mu.dtype),
     )
-    z = jnp.einsum(
-        "mts,ms->mt",
-        jnp.linalg.cholesky(model.view_corr)[draw],
-        jax.random.normal(key_e, shape, model.mu.dtype),
+    # every draw's factor applied to the same normals in one (M, T) x (T, N T) product, then the
+    # sample's own draw picked: cheaper than one tiny matrix-vector product per sample
+    low = spd_cholesky(model.view_corr)  # (N, T, T)
+    z_all = jax.random.normal(key_e, shape, model.mu.dtype) @ jnp.moveaxis(low, 2, 0).reshape(
+        n_t, n_n * n_t
     )
+    z = z_all.reshape(n_samples, n_n, n_t)[jnp.arange(n_samples), draw]
+    return k, theta, draw, u, z, log_state, log_draw
 
+
+def _expected_entropies(key, model, belief, views, n_samples, objective, planner):
+    """Sampled expected posterior entropy of each candidate view ``(C, 3)`` (:func:`expected_entropies`)."""
+    from scrppl.kway.planning import _entropy
+
+    n_k = model.mu.shape[2]
+    k, theta, draw, u, z, log_state, log_draw = _samples(key, model, belief, n_samples)
     collapsed = planner == "collapsed"
     if collapsed:
         # the instance effects' share of the collapsed covariance is the same for every candidate
@@ -895,6 +909,111 @@ def _expected_entropies(key, model, belief, views, n_samples, objective, planner
         return _entropy(log_joint, n_k, objective).mean()
 
     return jax.vmap(one)(views)
+
+
+def _entropy_states_first(log_joint, n_classes: int, objective: str) -> jax.Array:
+    """:func:`scrppl.kway.planning._entropy` for ``log_joint`` ``(..., K * A, M)``, states first: ``(..., M)``.
+
+    The reductions then run over a leading axis, along contiguous rows of samples.
+    """
+    shifted = log_joint - jnp.max(log_joint, axis=-2, keepdims=True)
+    p = jnp.exp(shifted)
+    if objective == "joint":
+        z = p.sum(-2)
+        return jnp.log(z) - (p * shifted).sum(-2) / z
+    p = p.reshape(*p.shape[:-2], n_classes, -1, p.shape[-1])
+    q = p.sum(-2) if objective == "class" else p.sum(-3)
+    z = q.sum(-2)
+    qlogq = jnp.where(q > 0, q * jnp.log(jnp.where(q > 0, q, 1.0)), 0.0).sum(-2)
+    return jnp.log(z) - qlogq / z
+
+
+@cache
+def _triangle(t: int):
+    """Rows and columns of the upper triangle of a ``T x T`` matrix, and 1 on its diagonal, 2 off it."""
+    i, j = np.triu_indices(t)
+    return i, j, np.where(i == j, 1.0, 2.0)
+
+
+def _ring_expected_entropies(key, model, belief, current, n_samples, objective):
+    """The collapsed planner's scores of every azimuth at the current elevation and scale, ``(A,)``.
+
+    The candidates of ``mode="azimuth"``, computed for all of them at once: the same numbers as
+    :func:`_expected_entropies` with ``planner="collapsed"`` (the same samples, to rounding), about
+    half the time. A state ``(k, theta)`` seen from robot azimuth ``phi`` has relative azimuth ``a =
+    (phi - theta) mod A``, so the collapsed Gaussian of every candidate and state is an entry of one table
+    over ``(k, theta, a)``, built by products over the draws that serve every candidate; each entry is
+    inverted once. The current azimuth, always visited, is not scored (``+inf``).
+    """
+    n_t, n_n, n_k, n_a = model.mu.shape[:4]
+    dtype = model.mu.dtype
+    cur, e, s = current[0], current[1], current[2]
+    k, theta, draw, u, z, log_state, log_draw = _samples(key, model, belief, n_samples)
+    # the ring's parameters by category first, (K, N, A, T); A the relative azimuth
+    mu = jnp.transpose(model.mu[..., e, s], (2, 1, 3, 0))
+    sd = jnp.transpose(model.sigma[..., e, s], (2, 1, 3, 0))
+    n_p = n_a - 1
+    phi = (cur + 1 + jnp.arange(n_p)) % n_a  # the candidates
+    rel = (phi[:, None] - theta[None, :]) % n_a  # (P, M)
+    f = mu[k, draw, rel] + u + sd[k, draw, rel] * z  # (P, M, T)
+
+    # the collapsed mean and covariance of every (k, theta, a), centred on the draws' plain means
+    # so that E[x x'] - E[x] E[x]' loses no digits: x = dm[k, n, a] + du[n, k, theta]
+    w = jnp.exp(log_draw)
+    w = w / w.sum(0, keepdims=True)  # (N, K, theta)
+    wk = jnp.transpose(w, (1, 2, 0))  # (K, theta, N)
+    mbar = mu.mean(1)  # (K, A, T)
+    dm = mu - mbar[:, None]
+    ubar = belief.u_mean.mean(0)  # (K, theta, T)
+    du = belief.u_mean - ubar  # (N, K, theta, T)
+    wdu = w[..., None] * du
+    c = (
+        jnp.matmul(wk, dm.reshape(n_k, n_n, -1)).reshape(n_k, n_a, n_a, n_t)
+        + wdu.sum(0)[:, :, None]
+    )
+    second = (
+        sd[..., :, None] * model.view_corr[None, :, None] * sd[..., None, :]
+        + dm[..., :, None] * dm[..., None, :]
+    )  # (K, N, A, T, T): view noise plus the means' spread, per draw
+    cov = jnp.matmul(wk, second.reshape(n_k, n_n, -1)).reshape(n_k, n_a, n_a, n_t, n_t)
+    cross = jnp.matmul(
+        jnp.transpose(wdu, (1, 2, 3, 0)).reshape(n_k, n_a * n_t, n_n), dm.reshape(n_k, n_n, -1)
+    )
+    cross = jnp.transpose(cross.reshape(n_k, n_a, n_t, n_a, n_t), (0, 1, 3, 2, 4))
+    inst = (w[..., None, None] * (belief.u_cov + du[..., :, None] * du[..., None, :])).sum(0)
+    cov = (
+        cov
+        + cross
+        + jnp.swapaxes(cross, -1, -2)
+        + inst[:, :, None]
+        - c[..., :, None] * c[..., None, :]
+    )
+    mean = mbar[:, None] + ubar[:, :, None] + c  # (K, theta, A, T)
+    prec, logdet = spd_inverse(cov)
+
+    # each candidate's entries: state (k, theta) at relative azimuth (phi - theta) mod A
+    poses = jnp.arange(n_a)
+    ra = (phi[:, None] - poses[None, :]) % n_a  # (P, theta)
+    pick = lambda x: jnp.moveaxis(x[:, poses[None, :], ra], 0, 1)  # noqa: E731  (P, K, theta, ...)
+    i, j, twice = _triangle(n_t)
+    upper = pick(prec[..., i, j]).reshape(n_p, n_k * n_a, -1) * jnp.asarray(twice, dtype)
+    prec = pick(prec).reshape(n_p, n_k * n_a, n_t, n_t)
+    logdet = pick(logdet).reshape(n_p, -1)
+    mean = pick(mean).reshape(n_p, -1, n_t)
+    # (f - m)' P (f - m) with f and m centred on the candidate's sample mean, through the upper
+    # triangle of P and the products f_i f_j: one (S, T(T+1)/2) x (T(T+1)/2, M) product per candidate
+    ref = f.mean(1, keepdims=True)
+    fc, mc = f - ref, mean - ref
+    pm = (prec * mc[..., None, :]).sum(-1)  # (P, S, T)
+    quad = (
+        jnp.matmul(upper, jnp.swapaxes(fc[..., i] * fc[..., j], 1, 2))
+        - 2 * jnp.matmul(pm, jnp.swapaxes(fc, 1, 2))
+        + jnp.sum(mc * pm, -1)[..., None]
+    )  # (P, S, M)
+    flat_state = jnp.maximum(log_state.reshape(-1), -1e30)
+    const = flat_state[:, None] - 0.5 * (logdet[..., None] + n_t * math.log(2 * math.pi))
+    h = _entropy_states_first(const - 0.5 * quad, n_k, objective).mean(-1)  # (P,)
+    return jnp.roll(jnp.concatenate([jnp.full((1,), jnp.inf, h.dtype), h]), cur)
 
 
 def expected_entropies(
