@@ -503,3 +503,42 @@ def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     assert path.stat().st_mtime_ns == stamp
     with pytest.raises(FileNotFoundError, match="correlation fit not found"):
         CR.load_correlations(tmp_path / "nowhere.nc")
+
+
+@pytest.mark.parametrize(
+    ("profile", "given", "expected"),
+    [
+        ("quick", None, "instance"),
+        ("book", None, "instance"),
+        ("full", None, "correlated"),
+        ("full", "instance", "instance"),
+        ("quick", "correlated", "correlated"),
+    ],
+)
+def test_kway_command_takes_the_profiles_filter_unless_told(
+    rng, tmp_path, monkeypatch, profile, given, expected
+):
+    """The full profile (the paper regime) runs the correlated filter, the others the instance-aware
+    one the book builds first; `--filter` overrides either."""
+    from scrppl.cli import main
+    from scrppl.cli.kway import PROFILE_FILTER
+    from scrppl.kway import study
+    from tests.test_kway import kway_run_folder
+
+    assert set(PROFILE_FILTER) == {"quick", "book", "full"}
+    kway_run_folder(rng, tmp_path)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(study, "run_kway_study", record)
+    argv = ["kway", "--out", str(tmp_path), "--profile", profile, "--quiet"]
+    argv += [] if given is None else ["--filter", given]
+    with pytest.raises(Stop):
+        main(argv)
+    assert seen["filter"] == expected

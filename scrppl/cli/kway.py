@@ -5,7 +5,9 @@
 ones), reads each target detector's fit K-way (:mod:`scrppl.kway.models`), and runs held-out trials of
 all K categories: the K-way filter with entropy planning (the collapsed planner,
 :data:`scrppl.kway.experiment.DEFAULT_PLANNER`), with random views, and K one-vs-rest binary filters
-(:mod:`scrppl.kway.experiment`), then a large experiment. The K-way class probabilities are tempered by a
+(:mod:`scrppl.kway.experiment`), then a large experiment. The full profile's K-way filter takes the
+detectors' correlated responses into account (:data:`PROFILE_FILTER`, :mod:`scrppl.kway.correlation`;
+the correlations are fitted once and saved beside the binary fits). The K-way class probabilities are tempered by a
 temperature fitted on random-view trials of the ``fit`` instances (:mod:`scrppl.kway.calibration`;
 ``--calibration-trials 0``: the filter's own probabilities).
 
@@ -20,7 +22,16 @@ from pathlib import Path
 
 from scrppl.cli._common import add_common, profile_settings, progress_log
 
-__all__ = ["register", "PROFILE_SETTINGS"]
+__all__ = ["register", "PROFILE_SETTINGS", "PROFILE_FILTER"]
+
+#: The K-way filter of each profile (``--filter`` overrides it). The full profile, the paper regime,
+#: runs the filter of the detectors' correlated responses (:mod:`scrppl.kway.correlation`): there the
+#: instance-aware filter, which multiplies the ``T`` detectors' likelihoods, is less accurate than
+#: one-vs-rest after one, two and four views and the correlated one more accurate
+#: (``benchmarks/results/kway-correlated.json``). The quick and book profiles keep the instance-aware
+#: filter, the one the book's K-way chapter builds first and against which it measures the correlated
+#: one; the correlation fit and the slower filter would add about a minute to them.
+PROFILE_FILTER = {"quick": "instance", "book": "instance", "full": "correlated"}
 
 #: Settings per profile: trials, large trials, samples M per decision, draws per target in each. Trials
 #: run in chunks of 160 under one compiled function per (draws, planner), so the book profile's two
@@ -75,9 +86,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--filter",
         choices=("instance", "naive_bayes", "correlated"),
-        default="instance",
-        help="belief filter of every method (default: instance-aware; correlated: detectors' "
-        "responses correlated, its correlations fitted by NUTS)",
+        default=None,
+        help="belief filter of every method (default: the profile's, PROFILE_FILTER: correlated for "
+        "full, instance-aware otherwise; correlated: detectors' responses correlated, its "
+        "correlations fitted by NUTS)",
     )
     p.add_argument(
         "--trials", type=int, default=None, help="trials of the paper-sized experiment (160)"
@@ -150,7 +162,7 @@ def _run(args: argparse.Namespace) -> int:
         table,
         out / "models",
         detector,
-        filter=args.filter,
+        filter=args.filter or PROFILE_FILTER[args.profile],
         objective=args.objective,
         planner=args.planner,
         accept_diagnostics=args.accept_diagnostics,

@@ -30,7 +30,7 @@ Measured (full profile, seed 0, DPM, 10,000 random-view test trials, temperature
 calibration error after 1, 2 and 4 views
 
 * correlated filter, ``T = 1.09``: 0.049, 0.034, 0.023 raw, 0.031, 0.021, 0.017 tempered;
-* independent detectors (the pipeline's filter), ``T = 1.41``: 0.084, 0.052, 0.048 raw, 0.050, 0.034,
+* independent detectors (the book profile's filter), ``T = 1.41``: 0.084, 0.052, 0.048 raw, 0.050, 0.034,
   0.017 tempered.
 
 The log loss of the test trials falls with either filter. The ``fit`` instances' temperature errs low:
