@@ -975,3 +975,66 @@ def test_filter_is_calibrated_on_its_own_model(rng, kind):
     assert (dh.mean(0) < 0).all(), dh.mean(0)
     dc = np.diff(correct, axis=1)
     assert (dc.mean(0) > -4 * dc.std(0, ddof=1) / np.sqrt(n_r)).all(), dc.mean(0)
+
+
+@pytest.mark.parametrize("kind", ["instance", "correlated"])
+def test_trial_takes_the_views_a_step_by_step_loop_takes(rng, kind):
+    """The experiment's compiled trial against a plain loop over the filter and the planner, the last
+    view of the ring chosen by the planner too: the same views and beliefs at every step, with every
+    azimuth available and with one missing (the last step then finds none)."""
+    from scrppl.kway import correlation as CR
+    from scrppl.kway.experiment import _trial
+    from scrppl.sim.simulator import robot_frame
+
+    model, _ = random_kway(rng, t=3, n=2, k=3, a=5)
+    if kind == "correlated":
+        eye = np.eye(3)
+        model = CR.with_correlations(model, 0.7 * eye + 0.3, 0.8 * eye + 0.2)
+    t, a = 3, 5
+    config = PlannerConfig(planner="collapsed", objective="class", n_samples=32)
+    for missing in (None, 3):
+        responses = jnp.asarray(rng.normal(0, 1.5, size=(t, a, 1, 1)), jnp.float32)
+        available = np.ones((a, 1, 1), bool)
+        if missing is not None:
+            available[missing] = False
+        pose, start = 2, jnp.asarray([1, 0, 0], jnp.int32)
+        key = jax.random.key(int(rng.integers(1 << 30)))
+        views, found, p_class, _ = _trial(
+            key,
+            model,
+            None,
+            responses,
+            jnp.asarray(available),
+            pose,
+            start,
+            None,
+            filter=kind,
+            config=config,
+            n_steps=a,
+            ovr=False,
+        )
+        mask = jnp.asarray(available)
+        resp_r = jax.vmap(lambda r, m=mask, p=pose: robot_frame(r, m, p)[0])(responses)
+        avail_r = robot_frame(responses[0], jnp.asarray(available), pose)[1]
+        belief = KF.update(model, KF.init_belief(kind, model), resp_r[:, 1, 0, 0], 1, 0, 0)
+        visited = np.zeros((a, 1, 1), bool)
+        visited[1] = True
+        current = start
+        want_views, want_p = [np.asarray(start)], [np.asarray(KF.class_marginal(belief))]
+        for j in range(1, a):
+            view, ok, _ = KP.choose_view(
+                jax.random.fold_in(key, j), model, belief, current, visited, avail_r, config
+            )
+            if not bool(ok):
+                want_views.append(np.asarray(current))
+                want_p.append(want_p[-1])
+                continue
+            v = np.asarray(view)
+            belief = KF.update(model, belief, resp_r[:, v[0], v[1], v[2]], *v)
+            visited[tuple(v)] = True
+            current = jnp.asarray(v, jnp.int32)
+            want_views.append(v)
+            want_p.append(np.asarray(KF.class_marginal(belief)))
+        np.testing.assert_array_equal(np.asarray(views), np.stack(want_views))
+        np.testing.assert_allclose(np.asarray(p_class), np.stack(want_p), atol=1e-5)
+        assert bool(np.asarray(found)[-1]) == (missing is None)
