@@ -12,8 +12,8 @@ detectors of one family, and the robot plans where to look to tell the categorie
   are correlated given the state: a NumPyro model of the two correlation matrices (view noise, instance
   effects) fitted by NUTS, the correlated filter (a ``T``-dimensional Kalman filter of the instance
   effects) and its entropy planners; in the paper regime it turns K-way recognition from less accurate
-  than one-vs-rest to more accurate after 1, 2 and 4 views and not behind after 8 (not yet the
-  pipeline's K-way model);
+  than one-vs-rest to more accurate after every number of views, and the full profile's ``scrppl kway``
+  runs it (:data:`scrppl.cli.kway.PROFILE_FILTER`);
 * :mod:`scrppl.kway.planning` -- sampled expected entropy of a vector observation, exact or with the
   collapsed (moment-matched) posterior update, random baseline;
 * ``scrppl.kway.profiles`` -- a per-category model (every non-target category its own viewpoint profile,

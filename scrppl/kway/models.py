@@ -43,8 +43,9 @@ A third, measured later, matters most: the ``T`` fits are separate, so the K-way
 detectors' responses as independent given the state, although all of them score the same image. In the
 paper regime their residuals correlate about 0.3 from view to view, and with independent detectors the
 K-way filter is less accurate than one-vs-rest after one view. :mod:`scrppl.kway.correlation` fits the
-correlations and its filter (``filter="correlated"``) is more accurate than one-vs-rest after 1, 2 and 4
-views and not behind after 8.
+correlations and its filter (``filter="correlated"``, the full profile's) is more accurate than
+one-vs-rest after 1, 2, 4 and 8 views in ``make reproduce`` (after 8 by +0.024 [+0.020, +0.028]; on
+an earlier benchmark run only not behind).
 
 A :class:`KwayModel` is the stack of the ``T`` response models (``O = K`` classes each) with a leading
 target axis; :func:`target_model` returns one of them as a plain ``ResponseModel``.
