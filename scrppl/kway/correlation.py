@@ -80,11 +80,15 @@ EPYC; the AMD figures in brackets):
   4 random views 0.045, 0.038, 0.028 (0.049, 0.034, 0.023), independent 0.075, 0.051, 0.048: the filter
   is still over-confident after one view (mean top probability 0.69 against accuracy 0.64 on 3,000
   trials), and 32 posterior draws instead of 8 do not change that.
-* Cost (``--only-timing``, two cores, medians): one collapsed planning decision (7 candidates, ``M =
-  256``, 8 draws, ``K = 10``) 2.8 ms against 1.2 ms for the independent filter's, one filter update 0.9 ms
+* Cost (``--only-timing``, two cores, medians): one collapsed planning decision
+  (:func:`scrppl.kway.planning.choose_view`, 7 candidates, ``M = 256``, 8 draws, ``K = 10``, the model an
+  argument as in the trials) 2.3 ms against 1.3 ms for the independent filter's, one filter update 0.7 ms
   against 0.3 ms (AMD EPYC, key ``full_amd_epyc_2026_12_06``; 4.0 and 1.5 ms before the inverses and
   Cholesky factors of :func:`spd_inverse` and :func:`spd_cholesky`, one ``10 x 10`` matrix per draw and
-  state); the 10,000-trial experiment with planning 162 s against 51 s.
+  state, and before the ring's table of :func:`_ring_expected_entropies`); the 10,000-trial experiment
+  with planning 162 s against 51 s before that table. In ``make reproduce`` the full profile runs this
+  filter: its K-way stage took 4.6 minutes beside the difficulty sweep
+  (``benchmarks/results/reproduce-full.json``).
 * Calibration: with the temperature of :mod:`scrppl.kway.calibration` (1.09, fitted on the ``fit``
   instances) the top-label errors after 1, 2 and 4 random views are 0.031, 0.021, 0.017 (AMD run).
 """
