@@ -226,6 +226,12 @@ def test_choose_view_respects_visited_and_random(rng):
     avail = jnp.ones((4, 1, 1), bool)
     for planner in KP.PLANNERS:
         cfg = PlannerConfig(planner=planner, n_samples=64)
+        if planner == "equicorrelated":  # the correlated filter's (tests/test_kway_correlation.py)
+            with pytest.raises(ValueError, match="needs the correlated filter"):
+                KP.choose_view(
+                    jax.random.key(0), model, belief, jnp.asarray([0, 0, 0]), visited, avail, cfg
+                )
+            continue
         for i in range(5):
             view, found, scores = KP.choose_view(
                 jax.random.key(i), model, belief, jnp.asarray([0, 0, 0]), visited, avail, cfg

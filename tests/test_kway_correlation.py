@@ -3,6 +3,8 @@ dense Gaussian, the correlated filter against the instance-aware one (identity c
 the dense joint of all views (any correlations), the fit against correlations it was given, and the errors.
 """
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -265,6 +267,14 @@ def test_experiment_with_the_correlated_filter(rng):
     az = got["azimuth"].sel({"method": "planning"}).values
     assert all(len(set(row)) == len(row) for row in az)
     assert got["correct"].sel({"method": "planning"}).values.all()
+    # the correlated filter's default planner, recorded; the others' is the collapsed one, and the
+    # equicorrelated planner is refused without the correlated filter
+    assert json.loads(got.attrs["planner_config"])["planner"] == "equicorrelated"
+    assert json.loads(want.attrs["planner_config"])["planner"] == "collapsed"
+    with pytest.raises(ValueError, match="equicorrelated planner needs filter 'correlated'"):
+        run_kway_experiment(
+            jax.random.key(1), model, trials, filter="instance", planner="equicorrelated"
+        )
 
 
 def test_correlation_lowers_the_evidence_of_one_unusual_view():
@@ -472,8 +482,6 @@ def test_unrolled_inverse_and_cholesky_are_numpys(rng, lead):
 def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     """`scrppl kway --filter correlated` fits the correlations once, saves them beside the binary fits,
     reuses them on a second run, and records them in the summary."""
-    import json
-
     from scrppl.cli import main
     from scrppl.kway.study import correlation_path
     from tests.test_kway import kway_run_folder
@@ -542,3 +550,74 @@ def test_kway_command_takes_the_profiles_filter_unless_told(
     with pytest.raises(Stop):
         main(argv)
     assert seen["filter"] == expected
+
+
+def test_equicorrelated_forms_are_the_dense_gaussians(rng):
+    """Sherman-Morrison's quadratic form against scipy's multivariate normal: the log densities of
+    every state differ from scipy's by one constant (log det R, the same for every state)."""
+    from scipy.stats import multivariate_normal
+
+    p, m, s, t, rho = 2, 5, 4, 6, 0.35
+    f = rng.normal(0, 1.5, size=(p, m, t))
+    mean = rng.normal(0, 1, size=(p, s, t))
+    var = rng.uniform(0.3, 2.0, size=(p, s, t))
+    quad, logdet = CR._equicorrelated_quad(
+        *(jnp.asarray(x, jnp.float32) for x in (f, mean, var)), rho
+    )
+    got = -0.5 * (np.asarray(quad) + np.asarray(logdet)[..., None])  # (P, S, M)
+    corr = (1 - rho) * np.eye(t) + rho
+    want = np.stack(
+        [
+            [
+                multivariate_normal(
+                    mean[i, j], np.sqrt(np.outer(var[i, j], var[i, j])) * corr
+                ).logpdf(f[i])
+                for j in range(s)
+            ]
+            for i in range(p)
+        ]
+    )
+    offset = want - got
+    np.testing.assert_allclose(offset, offset.flat[0], atol=2e-4)
+
+
+def test_equicorrelated_planner_is_the_collapsed_one_where_the_model_is_equicorrelated(rng):
+    """One draw, view noise equicorrelated and instance effects negligible: the predictive covariance
+    of every state is D R D with the planner's own R, so its scores are the full collapsed planner's
+    on the same samples; with correlations that are not equal it differs, and it is refused where it
+    cannot run."""
+    t, a = 3, 5
+    mu = rng.normal(0.0, 1.5, size=(t, 1, t, a, 1, 1))
+    sigma = rng.uniform(0.5, 1.2, size=mu.shape)
+    tau = np.full((t, 1, t), 1e-3)
+    model = KwayModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+    rho = 0.4
+    equi = CR.with_correlations(model, (1 - rho) * np.eye(t) + rho, np.eye(t))
+    belief = CR.update(equi, CR.init_belief(equi), jnp.asarray(rng.normal(0, 2, size=t)), 0)
+    current = jnp.asarray([0, 0, 0])
+    key = jax.random.key(2)
+    for objective in ("class", "joint"):
+        full = CR._ring_expected_entropies(key, equi, belief, current, 128, objective)
+        eq = CR._ring_expected_entropies(
+            key, equi, belief, current, 128, objective, equicorrelated=True
+        )
+        np.testing.assert_allclose(np.asarray(eq), np.asarray(full), rtol=1e-3, atol=1e-4)
+    uneven = CR.with_correlations(model, random_corr(rng, t), np.eye(t))
+    b2 = CR.update(uneven, CR.init_belief(uneven), jnp.asarray(rng.normal(0, 2, size=t)), 0)
+    full = CR._ring_expected_entropies(key, uneven, b2, current, 128, "class")
+    eq = CR._ring_expected_entropies(key, uneven, b2, current, 128, "class", equicorrelated=True)
+    assert not np.allclose(np.asarray(eq)[1:], np.asarray(full)[1:], atol=1e-4)
+    # choose_view runs it in azimuth mode on a correlated belief, and names what is missing otherwise
+    visited = np.zeros((a, 1, 1), bool)
+    visited[0] = True
+    available = np.ones((a, 1, 1), bool)
+    cfg = PlannerConfig(planner="equicorrelated", objective="class", n_samples=64)
+    view, found, scores = KP.choose_view(key, equi, belief, current, visited, available, cfg)
+    assert bool(found) and int(view[0]) == int(np.argmin(np.asarray(scores)))
+    plain = KF.update(model, KF.init_belief("instance", model), jnp.zeros(t), 0)
+    with pytest.raises(ValueError, match="needs the correlated filter"):
+        KP.choose_view(key, model, plain, current, visited, available, cfg)
+    with pytest.raises(ValueError, match="mode 'azimuth'"):
+        KP.choose_view(key, equi, belief, current, visited, available, cfg._replace(mode="all"))
+    with pytest.raises(ValueError, match="scores the azimuths of the current ring"):
+        KP.expected_entropies(key, equi, belief, np.array([[1, 0, 0]]), cfg)

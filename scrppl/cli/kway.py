@@ -4,7 +4,8 @@
 ``<out>/responses.nc`` and the hierarchical fits under ``<out>/models/`` (fitting the family's missing
 ones), reads each target detector's fit K-way (:mod:`scrppl.kway.models`), and runs held-out trials of
 all K categories: the K-way filter with entropy planning (the collapsed planner,
-:data:`scrppl.kway.experiment.DEFAULT_PLANNER`), with random views, and K one-vs-rest binary filters
+:data:`scrppl.kway.experiment.DEFAULT_PLANNER`; with the correlated filter its equicorrelated
+approximation, :data:`scrppl.kway.experiment.CORRELATED_PLANNER`), with random views, and K one-vs-rest binary filters
 (:mod:`scrppl.kway.experiment`), then a large experiment. The full profile's K-way filter takes the
 detectors' correlated responses into account (:data:`PROFILE_FILTER`, :mod:`scrppl.kway.correlation`;
 the correlations are fitted once and saved beside the binary fits). The K-way class probabilities are tempered by a
@@ -122,9 +123,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--planner",
-        choices=("collapsed", "sampled"),
-        default="collapsed",
-        help="entropy planner: collapsed (moment-matched update, the default) or sampled (exact mixture)",
+        choices=("collapsed", "sampled", "equicorrelated"),
+        default=None,
+        help="entropy planner: collapsed (moment-matched update, the default), sampled (exact mixture) "
+        "or equicorrelated (the correlated filter's default: collapsed with one shared correlation)",
     )
     p.add_argument(
         "--accept-diagnostics",

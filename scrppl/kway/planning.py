@@ -62,6 +62,12 @@ per candidate.
 
 * ``planner="sampled"`` -- the exact entropy planner above (the mixture over the draws kept);
 * ``planner="collapsed"`` -- the same with the moment-matched posterior update;
+* ``planner="equicorrelated"`` -- for the correlated filter only, over the azimuths of the current ring
+  (``mode="azimuth"``): the collapsed planner with each state's collapsed means and variances and one
+  correlation shared by every two detectors and every state, the view noise's mean correlation
+  (:func:`scrppl.kway.correlation._ring_expected_entropies`): no ``T x T`` covariance per state to build
+  or invert. The correlated experiment's default (:data:`scrppl.kway.experiment.CORRELATED_PLANNER`, where
+  the measurements are);
 * ``planner="random"`` -- a uniformly random unseen view (:func:`scrppl.planning.random_unseen_view`).
 
 Objectives ``"joint"`` ``H(k, theta)``, ``"class"`` ``H(k)``, ``"pose"`` ``H(theta)``; candidate sets
@@ -95,6 +101,7 @@ from scrppl.views import angular_distance, check_mask_shape
 
 __all__ = [
     "PLANNERS",
+    "check_equicorrelated",
     "sample_responses",
     "posterior_entropy",
     "sampled_expected_entropy",
@@ -106,7 +113,7 @@ __all__ = [
 ]
 
 #: Planners for K-way recognition (quadrature does not scale to a vector response: module docstring).
-PLANNERS = ("sampled", "collapsed", "random")
+PLANNERS = ("sampled", "collapsed", "equicorrelated", "random")
 #: Where the collapsed planner's responses come from: ``"mixture"`` (the exact predictive, with the exact
 #: planner's random numbers) or ``"collapsed"`` (the moment-matched Gaussians); see the module docstring.
 RESPONSES = ("mixture", "collapsed")
@@ -355,6 +362,11 @@ def expected_entropies(
             "the random planner scores no view; expected_entropies needs planner 'sampled' or "
             "'collapsed' (scrppl.kway.planning)"
         )
+    if config.planner == "equicorrelated":
+        raise ValueError(
+            "the equicorrelated planner scores the azimuths of the current ring together: use "
+            "choose_view (mode 'azimuth', a correlated belief), or planner 'collapsed' here"
+        )
     return _expected_entropies(
         key, model, belief, jnp.asarray(views), config.n_samples, config.objective, config.planner
     )
@@ -433,7 +445,24 @@ def choose_view(
     check_mask_shape(visited, grid, name="visited mask")
     check_mask_shape(available, grid, name="available mask")
     _check_views(grid, current, "current view", ndim=1)
+    check_equicorrelated(config, belief)
     return _choose_view(key, model, belief, current, visited, available, config)
+
+
+def check_equicorrelated(config: PlannerConfig, belief) -> None:
+    """Raise ``ValueError`` unless the ``"equicorrelated"`` planner (if chosen) can run here."""
+    if config.planner != "equicorrelated":
+        return
+    if not isinstance(belief, CR.CorrelatedBelief):
+        raise ValueError(
+            "the equicorrelated planner needs the correlated filter's belief "
+            f"(scrppl.kway.correlation), got {type(belief).__name__}; use planner 'collapsed'"
+        )
+    if config.mode != "azimuth":
+        raise ValueError(
+            f"the equicorrelated planner scores the azimuths of the current ring (mode 'azimuth'), "
+            f"got mode {config.mode!r}"
+        )
 
 
 @partial(jax.jit, static_argnames=("config",))
@@ -444,12 +473,18 @@ def _choose_view(key, model, belief, current, visited, available, config):
         return views[idx], found, jnp.where(valid, 0.0, jnp.inf)
     if (
         isinstance(belief, CR.CorrelatedBelief)
-        and config.planner == "collapsed"
+        and config.planner in ("collapsed", "equicorrelated")
         and config.mode == "azimuth"
     ):
         # every azimuth of the ring from one table (the same scores, about half the time)
         h = CR._ring_expected_entropies(
-            key, model, belief, jnp.asarray(current), config.n_samples, config.objective
+            key,
+            model,
+            belief,
+            jnp.asarray(current),
+            config.n_samples,
+            config.objective,
+            equicorrelated=config.planner == "equicorrelated",
         )
     else:
         h = _expected_entropies(

@@ -108,6 +108,7 @@ def _planner_name(planner: str | None) -> str:
     return {
         "collapsed": "collapsed (moment-matched update)",
         "sampled": "sampled (exact mixture update)",
+        "equicorrelated": "equicorrelated (collapsed, one correlation shared by every two detectors)",
     }.get(planner or "", planner or "sampled")
 
 

@@ -28,7 +28,6 @@ from scrppl.kway.correlation import (
 )
 from scrppl.kway.experiment import (
     CONFUSION_STEPS,
-    DEFAULT_PLANNER,
     categories_without_trials,
     compare_kway,
     confusion_matrices,
@@ -115,7 +114,7 @@ def run_kway_study(
     max_draws: int = 8,
     large_max_draws: int = 4,
     objective: str = "class",
-    planner: str = DEFAULT_PLANNER,
+    planner: str | None = None,
     accept_diagnostics: bool = False,
     sampler=None,
     progress: bool = True,
@@ -148,8 +147,10 @@ def run_kway_study(
     objective
         Entropy the planner minimises (``"class"``: ``H(k)``; ``"joint"``: ``H(k, theta)``).
     planner
-        The entropy planner (:data:`scrppl.kway.experiment.ENTROPY_PLANNERS`): ``"collapsed"`` (the
-        default, moment-matched update) or ``"sampled"`` (the exact mixture update).
+        The entropy planner (:data:`scrppl.kway.experiment.ENTROPY_PLANNERS`): by default
+        :func:`~scrppl.kway.experiment.default_planner` of the filter (``"collapsed"``, the
+        moment-matched update; ``"equicorrelated"`` with the correlated filter), or ``"sampled"`` (the
+        exact mixture update).
     accept_diagnostics
         Use fits that failed their MCMC diagnostics (otherwise ``ValueError``).
     sampler
