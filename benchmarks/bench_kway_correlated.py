@@ -13,7 +13,10 @@ On a finished run's response table and binary fits (``RESULTS/responses.nc``, ``
   expected calibration error after 1, 2 and 4 views, per held-out instance the share of trials right after
   1 and 8 views, and the seconds each run took.
 
-Writes ``benchmarks/results/kway-correlated.json`` (key ``--key``, default the run's profile). Run:
+Writes ``benchmarks/results/kway-correlated.json`` (key ``--key``, default the run's profile);
+``--planner-study`` instead compares the correlated filter's equicorrelated planner with the full collapsed
+one (the regret of their choices on real beliefs, and a paired experiment) and writes
+``benchmarks/results/kway-equicorrelated.json``. Run:
 ``python benchmarks/bench_kway_correlated.py RESULTS [--trials N] [--draws N] [--cache DIR]
 [--calibration-trials N] [--key KEY]``.
 """
@@ -33,6 +36,8 @@ import numpy as np  # noqa: E402
 import xarray as xr  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "kway-correlated.json"
+#: ``--planner-study``'s record: the equicorrelated planner against the full collapsed one.
+PLANNER_RESULTS = Path(__file__).parent / "results" / "kway-equicorrelated.json"
 STEPS = (1, 2, 4, 8)
 
 
@@ -168,6 +173,119 @@ def _tempered(args, model, kind, table, det, cats, ds) -> dict:
     }
 
 
+def _planner_study(corr, table, det, cats, n_beliefs_trials: int, n_paired: int, seed: int) -> dict:
+    """The equicorrelated planner against the full collapsed one (``--planner-study``).
+
+    * Regret: on the beliefs of ``n_beliefs_trials`` test trials after 1, 2 and 3 random views, every
+      candidate of the ring scored by the exact planner with ``M = 2048`` (the reference) and the choice
+      of each planner at the experiment's ``M = 256`` (the full collapsed, the exact one, the
+      equicorrelated one) charged the reference's expected class entropy above the best candidate's.
+    * Paired experiment: ``n_paired`` trials with planning, once with each planner (same trials, keys).
+    """
+    import jax.numpy as jnp
+
+    from scrppl.kway import correlation as CR
+    from scrppl.kway.experiment import make_kway_trials, run_kway_experiment
+    from scrppl.planning import PlannerConfig, candidate_views
+    from scrppl.sim.simulator import robot_frame
+
+    rng = np.random.default_rng(seed)
+    update = jax.jit(lambda b, f, v: CR.update(corr, b, f, v[0], v[1], v[2]))
+    reference = jax.jit(
+        lambda k, b, v: CR._expected_entropies(k, corr, b, v, 2048, "class", "sampled")
+    )
+    planners = {
+        "collapsed": jax.jit(
+            lambda k, b, c, v: CR._ring_expected_entropies(k, corr, b, c, 256, "class")
+        ),
+        "equicorrelated": jax.jit(
+            lambda k, b, c, v: CR._ring_expected_entropies(
+                k, corr, b, c, 256, "class", equicorrelated=True
+            )
+        ),
+        "sampled": jax.jit(
+            lambda k, b, c, v: CR._expected_entropies(k, corr, b, v, 256, "class", "sampled")
+        ),
+    }
+    trials = make_kway_trials(jax.random.key(seed + 11), table, det, n_beliefs_trials)
+    rows = []
+    for r in range(n_beliefs_trials):
+        resp = jax.vmap(lambda x, r=r: robot_frame(x, trials.available[r], trials.pose[r])[0])(
+            trials.responses[r]
+        )
+        avail = robot_frame(trials.responses[r, 0], trials.available[r], trials.pose[r])[1]
+        e, s = (int(v) for v in np.asarray(trials.start[r, 1:]))
+        phi = int(trials.start[r, 0])
+        belief = CR.init_belief(corr)
+        visited = np.zeros(avail.shape, bool)
+        for depth in (1, 2, 3):
+            belief = update(belief, resp[:, phi, e, s], jnp.asarray([phi, e, s]))
+            visited[phi, e, s] = True
+            current = jnp.asarray([phi, e, s])
+            views, valid = candidate_views(current, visited, avail, "azimuth")
+            valid = np.asarray(valid)
+            if valid.sum() < 2:
+                break
+            key = jax.random.key(1000 * r + depth)
+            ref = np.where(
+                valid, np.asarray(reference(jax.random.fold_in(key, 7), belief, views)), np.inf
+            )
+            row = {"depth": depth, "spread": float(ref[valid].max() - ref.min())}
+            for name, fn in planners.items():
+                sc = np.where(valid, np.asarray(fn(key, belief, current, views)), np.inf)
+                row[name] = float(ref[int(np.argmin(sc))] - ref.min())
+            rows.append(row)
+            phi = int(rng.choice(np.flatnonzero(valid)))
+    regret = {name: round(float(np.mean([x[name] for x in rows])), 5) for name in planners}
+    decisive = [x for x in rows if x["spread"] >= 0.01]
+    paired = make_kway_trials(jax.random.key(seed + 21), table, det, n_paired)
+    vtc, seconds = {}, {}
+    for name in ("collapsed", "equicorrelated"):
+        t0 = time.perf_counter()
+        ds = run_kway_experiment(
+            jax.random.key(seed + 22),
+            corr,
+            paired,
+            categories=cats,
+            filter="correlated",
+            planner=name,
+            config=PlannerConfig(objective="class", n_samples=256),
+        )
+        seconds[name] = round(time.perf_counter() - t0, 1)
+        vtc[name] = ds["views_to_confidence"].values  # (method, trial): planning, random
+    d = vtc["equicorrelated"][0] - vtc["collapsed"][0]
+    boot = [d[rng.integers(0, len(d), len(d))].mean() for _ in range(2000)]
+    return {
+        "what": "the equicorrelated planner (one correlation shared by every two detectors and every "
+        "state) against the full collapsed planner, correlated filter, class objective, M = 256",
+        "regret_nats": {
+            "reference": "exact planner, M = 2048; charged: its expected class entropy of the chosen "
+            "candidate minus the smallest",
+            "beliefs": len(rows),
+            "all": regret,
+            "decisive_beliefs": len(decisive),
+            "decisive": {
+                name: round(float(np.mean([x[name] for x in decisive])), 5) for name in planners
+            },
+        },
+        "paired_experiment": {
+            "trials": n_paired,
+            "views_to_confidence_planning": {
+                name: round(float(v[0].mean()), 4) for name, v in vtc.items()
+            },
+            "planning_minus_random": {
+                name: round(float((v[0] - v[1]).mean()), 4) for name, v in vtc.items()
+            },
+            "equicorrelated_minus_collapsed": [
+                round(float(d.mean()), 4),
+                round(float(np.percentile(boot, 2.5)), 4),
+                round(float(np.percentile(boot, 97.5)), 4),
+            ],
+            "seconds": seconds,
+        },
+    }
+
+
 def main() -> None:
     from scrppl.kway import correlation as CR
     from scrppl.kway.experiment import (
@@ -202,6 +320,12 @@ def main() -> None:
         "--only-timing",
         action="store_true",
         help="only time one decision and one filter update (added to the record)",
+    )
+    ap.add_argument(
+        "--planner-study",
+        action="store_true",
+        help="only the equicorrelated planner against the full collapsed one (record "
+        "benchmarks/results/kway-equicorrelated.json)",
     )
     args = ap.parse_args()
 
@@ -251,6 +375,14 @@ def main() -> None:
     corr = CR.with_correlations(model, vc, ic)
     timing = _timing(model, corr, table, det)
     print("timing", json.dumps(timing))
+    if args.planner_study:
+        study = _planner_study(corr, table, det, cats, 60, 3200, args.seed)
+        study["machine"] = machine_description()
+        study["command"] = "python benchmarks/bench_kway_correlated.py RESULTS --planner-study"
+        print(json.dumps(study, indent=1))
+        PLANNER_RESULTS.write_text(json.dumps(study, indent=1) + "\n")
+        print(f"wrote {PLANNER_RESULTS}")
+        return
     if args.only_timing:
         record = json.loads(RESULTS.read_text())
         record[args.key or str(run.get("profile", "unknown"))]["timing"] = timing
