@@ -10,6 +10,8 @@
   predictive checks of what the filters use;
 * :mod:`~scrppl.models.simulate` -- response tables from known parameters;
 * :mod:`~scrppl.models.transforms` -- variance-stabilising transforms of raw responses;
+* :mod:`~scrppl.models.loo` -- a fit with one object left out, by Pareto-smoothed importance sampling
+  of its draws (no refit);
 * :mod:`~scrppl.models.tails` -- a Student-t instance effect for the exact filters, as a quadrature over
   its scale mixture (weighted draws);
 * :func:`load_response_model` -- what the rest of the pipeline calls: a saved fit as a
