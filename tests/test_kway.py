@@ -831,7 +831,7 @@ def kway_run_folder(rng, root, cats=("a", "b", "c")) -> list[str]:
     table["score"].values[:] = rng.normal(size=table["score"].shape)
     save_response_table(table, root / "responses.nc")
     for t in cats:
-        tree = fake_posterior(rng, t, [c for c in cats if c != t])
+        tree = fake_posterior(rng, t, [c for c in cats if c != t], draws=50)  # enough for PSIS
         meta = json.loads(tree.attrs["meta"])
         tree.attrs["meta"] = json.dumps(dict(meta, n_neg_categories=len(cats) - 1, categories=cats))
         save_posterior(model_path(root / "models", "hierarchical", "dpm", t), tree)
@@ -885,6 +885,11 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     report = write_report(tmp_path).read_text()
     assert "## Which object is it? K-way recognition" in report
     assert "Expected calibration error of the top-label probability after 1, 2, 4 views" in report
+    loo = summary["calibration_fit"]["loo"]  # the temperature's trials left each object out
+    assert (
+        "each object left out of the models by Pareto-smoothed importance sampling, with Pareto k "
+        f"above 0.7 for {loo['above']} of {loo['pairs']} object-target pairs" in report
+    )
     # K-way minus one-vs-rest accuracy, the summary's numbers
     d = summary["trials"]["random_minus_one_vs_rest"]["accuracy"]
     assert f"after 1: {d['mean'][0]:.3f} [{d['lo'][0]:.3f}, {d['hi'][0]:.3f}]" in report

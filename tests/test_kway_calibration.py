@@ -92,20 +92,29 @@ def test_experiment_reports_tempered_probabilities(rng):
         run_kway_experiment(jax.random.key(1), model, trials, temperature=0.0, **opts)
 
 
-def test_kway_command_fits_the_temperature_on_the_fit_instances(rng, tmp_path):
-    """`scrppl kway --calibration-trials N` fits T on fit-split trials, applies it to the experiment and
-    records it; the summary's untempered calibration is that of the probabilities tempered back."""
+@pytest.mark.parametrize("how", ["loo", "fit"])
+def test_kway_command_fits_the_temperature_on_the_fit_instances(rng, tmp_path, how):
+    """`scrppl kway --calibration-trials N` fits T on fit-split trials (each object left out of the
+    models, or not), applies it to the experiment and records it; the summary's untempered calibration is
+    that of the probabilities tempered back."""
     from scrppl.cli import main
     from scrppl.kway.experiment import kway_calibration
 
     kway_run_folder(rng, tmp_path)
     argv = ["kway", "--out", str(tmp_path), "--profile", "quick", "--trials", "8"]
     argv += ["--large-trials", "0", "--n-samples", "8", "--quiet", "--calibration-trials", "30"]
-    assert main(argv) == 0
+    assert main([*argv, "--calibration", how]) == 0
     summary = json.loads((tmp_path / "kway-summary.json").read_text())
     fitted = summary["calibration_fit"]
     t = fitted["temperature"]
     assert fitted["trials"] == 30 and fitted["split"] == "fit"
+    if how == "loo":
+        assert fitted["method"] == "leave-one-object-out"
+        loo = fitted["loo"]
+        assert loo["objects"] == 6 and loo["pairs"] == 18  # 3 categories x 2 fit objects, 3 targets
+        assert 0 <= loo["above"] <= loo["pairs"] and loo["threshold"] == 0.7
+    else:
+        assert fitted["method"] == "fit-instances" and "loo" not in fitted
     assert C.TEMPERATURE_BOUNDS[0] <= t <= C.TEMPERATURE_BOUNDS[1]
     assert fitted["log_loss"]["tempered"] <= fitted["log_loss"]["raw"] + 1e-9  # T minimises it
     ds = xr.open_dataset(tmp_path / "kway-trials.nc")
@@ -149,3 +158,88 @@ def test_kway_command_without_full_fit_rings_leaves_probabilities_untempered(rng
     summary = json.loads((tmp_path / "kway-summary.json").read_text())
     assert "calibration_fit" not in summary and summary["categories"] == cats
     assert xr.open_dataset(tmp_path / "kway-trials.nc").attrs["temperature"] == 1.0
+
+
+def _near_constant_fits(rng, root, cats):
+    """Rewrite the run folder's fake fits so that every draw is draw 0 up to 1e-7: leaving an object
+    out then changes nothing but which (near-identical) draws are kept."""
+    from scrppl.models.io import load_posterior, model_path, save_posterior
+
+    trees = {}
+    for t in cats:
+        path = model_path(root / "models", "hierarchical", "dpm", t)
+        tree = load_posterior(path)
+        post = tree["posterior"].to_dataset()
+        for name in post.data_vars:
+            x = post[name].values
+            first = np.broadcast_to(x[:1, :1], x.shape)
+            post[name] = (post[name].dims, first + 1e-7 * rng.normal(size=x.shape))
+        new = xr.DataTree.from_dict({"posterior": post})
+        new.attrs.update(tree.attrs)
+        save_posterior(path, new)
+        trees[t] = load_posterior(path)
+    return trees
+
+
+def test_loo_models_resample_each_targets_own_draws(rng, tmp_path):
+    """Each object's model holds, per target, draws of that target's fit (rows of its K-way reading);
+    the Pareto k come per (object, target); an object that is not a fit instance is refused."""
+    from scrppl.kway.models import kway_response_model
+    from scrppl.models.io import load_posterior, model_path
+    from scrppl.responses import load_response_table
+
+    cats = kway_run_folder(rng, tmp_path)
+    table = load_response_table(tmp_path / "responses.nc")
+    trees = {
+        t: load_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", t)) for t in cats
+    }
+    objects = [("a", 0), ("b", 1), ("c", 0)]
+    models, k = C.loo_models(jax.random.key(3), trees, table, "dpm", objects, n_draws=5)
+    assert len(models) == 3 and k.shape == (3, 3)
+    for model in models:
+        assert model.mu.shape == (3, 5, 3, 4, 1, 1)
+        for ti, t in enumerate(cats):
+            full = np.asarray(kway_response_model(trees[t], cats).mu)
+            for j in range(5):
+                d = np.abs(full - np.asarray(model.mu[ti, j])[None]).max(axis=(1, 2, 3, 4))
+                assert d.min() < 1e-6  # one of the fit's own draws
+    test_object = ("a", int(table["instance"].values[2]))  # instance 2 is in the test split
+    with pytest.raises(ValueError, match="not among the fit instances"):
+        C.loo_models(jax.random.key(3), trees, table, "dpm", [test_object], n_draws=5)
+
+
+def test_loo_calibration_trials_match_the_ordinary_ones_when_no_object_moves_the_fit(rng, tmp_path):
+    """With fits whose draws are all (nearly) one point, no object moves the posterior: after every
+    view of the ring (the belief does not depend on the order) each trial's class probabilities equal
+    those of the models fitted to all objects, for the same object and pose."""
+    from scrppl.kway.models import kway_from_fits
+    from scrppl.responses import load_response_table
+
+    cats = kway_run_folder(rng, tmp_path)
+    trees = _near_constant_fits(rng, tmp_path, cats)
+    table = load_response_table(tmp_path / "responses.nc")
+    with pytest.raises(ValueError, match="every category"):
+        C.loo_calibration_trials(
+            jax.random.key(0), dict(reversed(trees.items())), table, "dpm", 4, n_draws=3
+        )
+    loo = C.loo_calibration_trials(jax.random.key(0), trees, table, "dpm", 36, n_draws=3)
+    assert loo.attrs["calibration"] == "leave-one-object-out"
+    assert loo.sizes["trial"] == 36 and loo["pareto_k"].shape == (6, 3)
+    model = kway_from_fits(tmp_path / "models", "dpm", cats, n_draws=3).model
+    plain = C.calibration_trials(jax.random.key(1), model, table, "dpm", 36, categories=cats)
+
+    def final(ds):
+        out = {}
+        for r in range(ds.sizes["trial"]):
+            key = (int(ds["category_index"][r]), int(ds["instance"][r]), int(ds["pose"][r]))
+            out[key] = ds["p_class"].sel({"method": "random"}).values[r, -1]
+        return out
+
+    a, b = final(loo), final(plain)
+    common = set(a) & set(b)
+    assert len(common) >= 5
+    for key in common:
+        np.testing.assert_allclose(a[key], b[key], atol=1e-4)
+    # the trials are those of the fit split, every category equally often
+    assert set(np.asarray(loo["instance"]).tolist()) <= {0, 1}
+    assert np.bincount(loo["category_index"].values, minlength=3).tolist() == [12, 12, 12]

@@ -224,6 +224,33 @@ def test_a_sweep_made_with_other_settings_than_the_profiles_is_not_up_to_date(tm
     assert not made_with_profile(out / "sweep-summary.json", "no-such-profile")
 
 
+def test_a_kway_stage_whose_temperature_saw_its_fit_objects_is_not_up_to_date(tmp_path):
+    """A K-way summary written before the temperature's trials left each fit object out of the models
+    (its calibration_fit has no ``method``) reruns the stage; one without a temperature, or with the
+    method recorded, is current; an unreadable summary is not."""
+    from scrppl.pipeline import is_current, stages
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trials.nc").write_bytes(b"")
+    (out / "kway-trials.nc").write_bytes(b"")
+    summary = out / "kway-summary.json"
+    kway = next(
+        s for s in stages(tmp_path / "data", out, seed=0, profile="book") if s.name == "kway"
+    )
+    for fitted, current in (
+        ({"temperature": 1.2}, False),
+        ({"temperature": 1.2, "method": "leave-one-object-out"}, True),
+        ({"temperature": 1.2, "method": "fit-instances"}, True),
+        (None, True),
+    ):
+        body = {"categories": ["a"]} if fitted is None else {"calibration_fit": fitted}
+        summary.write_text(json.dumps(body))
+        assert is_current(kway) == current, fitted
+    summary.write_text("{not json")
+    assert not is_current(kway)
+
+
 def _background_stage(tmp_path, name, *script, runner="subprocess:call"):
     """A background stage whose child runs ``script`` (shell command lines) with ``runner``."""
     return Stage(

@@ -8,9 +8,11 @@ all K categories: the K-way filter with entropy planning (the collapsed planner,
 approximation, :data:`scrppl.kway.experiment.CORRELATED_PLANNER`), with random views, and K one-vs-rest binary filters
 (:mod:`scrppl.kway.experiment`), then a large experiment. The full profile's K-way filter takes the
 detectors' correlated responses into account (:data:`PROFILE_FILTER`, :mod:`scrppl.kway.correlation`;
-the correlations are fitted once and saved beside the binary fits). The K-way class probabilities are tempered by a
-temperature fitted on random-view trials of the ``fit`` instances (:mod:`scrppl.kway.calibration`;
-``--calibration-trials 0``: the filter's own probabilities).
+the correlations are fitted once and saved beside the binary fits). The K-way class probabilities are
+tempered by a temperature fitted on random-view trials of the ``fit`` instances, each object's trials run
+with the models' posteriors without that object (:mod:`scrppl.kway.calibration`, :mod:`scrppl.models.loo`;
+``--calibration fit``: with the models fitted to them; ``--calibration-trials 0``: the filter's own
+probabilities).
 
 Writes ``kway/kway-<detector>.nc``, ``kway-trials.nc``, ``kway-trials-large.nc``, ``kway-summary.json``
 and ``figures/kway-accuracy.png``, ``figures/kway-confusion.png``.
@@ -116,6 +118,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "probabilities is fitted and applied (0: the filter's own probabilities)",
     )
     p.add_argument(
+        "--calibration",
+        choices=("loo", "fit"),
+        default="loo",
+        help="trials the temperature is fitted on: loo (default), each fit object's with the models' "
+        "posteriors without it (Pareto-smoothed importance sampling, no refit); fit, with the models "
+        "fitted to them (flatters the models)",
+    )
+    p.add_argument(
         "--objective",
         choices=("class", "joint", "pose"),
         default="class",
@@ -167,6 +177,7 @@ def _run(args: argparse.Namespace) -> int:
         filter=args.filter or PROFILE_FILTER[args.profile],
         objective=args.objective,
         planner=args.planner,
+        calibration=args.calibration,
         accept_diagnostics=args.accept_diagnostics,
         sampler=sampler,
         progress=not args.quiet,

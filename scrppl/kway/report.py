@@ -17,7 +17,7 @@ def _ci(mean: float, lo: float, hi: float, digits: int = 3) -> str:
     return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
-def _experiment(e: dict, label: str) -> str:
+def _experiment(e: dict, label: str, how: str = "") -> str:
     steps = e["steps"]
     head = (
         ["method"]
@@ -76,7 +76,7 @@ def _experiment(e: dict, label: str) -> str:
             raw = cal["ece_top_untempered"]
             text += (
                 f" (the K-way probabilities tempered by T = {t:.2f}, fitted on trials of the fit "
-                "instances; untempered: "
+                f"instances{how}; untempered: "
                 + "; ".join(
                     f"{_NAMES.get(m, m)} " + ", ".join(f"{x:.3f}" for x in raw[m])
                     for m in raw
@@ -134,7 +134,15 @@ def kway_markdown(summary: dict) -> str:
         )
     if summary.get("diagnostics_failed"):
         text += f"_Fits used despite failed MCMC diagnostics: {', '.join(summary['diagnostics_failed'])}._\n\n"
-    text += _experiment(summary["trials"], "Paper-sized experiment")
+    fitted = summary.get("calibration_fit", {})
+    how = ""
+    if fitted.get("method") == "leave-one-object-out":
+        loo = fitted["loo"]
+        how = (
+            ", each object left out of the models by Pareto-smoothed importance sampling, with Pareto k "
+            f"above {loo['threshold']} for {loo['above']} of {loo['pairs']} object-target pairs"
+        )
+    text += _experiment(summary["trials"], "Paper-sized experiment", how)
     if "large" in summary:
-        text += "\n" + _experiment(summary["large"], "Large experiment")
+        text += "\n" + _experiment(summary["large"], "Large experiment", how)
     return text + "\n" + _recall(summary, summary["trials"])

@@ -55,7 +55,11 @@ __all__ = [
     "load_kway_results",
     "summary_dict",
     "REPORT_STEPS",
+    "CALIBRATIONS",
 ]
+
+#: How the temperature's trials of the ``fit`` instances are run (``run_kway_study(calibration=)``).
+CALIBRATIONS = ("loo", "fit")
 
 #: Steps (views) at which the summary reports accuracy.
 REPORT_STEPS = (1, 2, 4, 8)
@@ -120,6 +124,7 @@ def run_kway_study(
     progress: bool = True,
     log: Callable[[str], None] = print,
     calibration_trials: int = 0,
+    calibration: str = "loo",
 ) -> KwayStudy:
     """One family's K-way models and experiments.
 
@@ -161,6 +166,12 @@ def run_kway_study(
         Random-view trials on the ``fit`` instances from which a temperature for the K-way class
         probabilities is fitted (:mod:`scrppl.kway.calibration`) and applied to both experiments;
         ``0`` (the default) reports the filter's own probabilities.
+    calibration
+        Which trials of the ``fit`` instances: ``"loo"`` (the default) runs each object's trials with
+        the models' posteriors without that object (Pareto-smoothed importance sampling,
+        :func:`~scrppl.kway.calibration.loo_calibration_trials`; the fits need at least
+        :data:`scrppl.models.loo.MIN_DRAWS` draws); ``"fit"`` with the models fitted to them
+        (:func:`~scrppl.kway.calibration.calibration_trials`), which flatters the models.
     """
     from scrppl.models import transforms
     from scrppl.models.io import model_path, save_posterior
@@ -179,6 +190,8 @@ def run_kway_study(
             f"the {detector} fits of {sorted(failed)} failed their MCMC diagnostics ({failed}); refit "
             "with longer chains or pass --accept-diagnostics"
         )
+    if calibration not in CALIBRATIONS:
+        raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {calibration!r}")
     name = fit.info["transform"]
     trans = lambda raw: transforms.apply(name, raw)  # noqa: E731
     corr_fit = None
@@ -188,7 +201,7 @@ def run_kway_study(
         )
     config = PlannerConfig(objective=objective, n_samples=int(n_samples))
     key = jax.random.key(seed)
-    calibration = None
+    calibration_fit = None
     lacking = (
         categories_without_trials(table, detector, transform=trans, split="fit")
         if calibration_trials > 0
@@ -200,24 +213,60 @@ def run_kway_study(
             "class probabilities are left untempered"
         )
     elif calibration_trials > 0:
-        calibration = _fit_calibration(
-            jax.random.fold_in(key, 5),
-            fit.model
-            if corr_fit is None
-            else with_correlations(fit.model, *correlations_from_fit(corr_fit, max_draws)),
-            table,
-            detector,
-            int(calibration_trials),
-            filter=filter,
-            transform=trans,
-            categories=categories,
-            progress=progress,
+        k_cal = jax.random.fold_in(key, 5)
+        if calibration == "loo":
+            from scrppl.kway.calibration import loo_calibration_trials
+            from scrppl.models.io import load_posterior
+
+            ds = loo_calibration_trials(
+                k_cal,
+                {
+                    t: load_posterior(model_path(models_dir, "hierarchical", detector, t))
+                    for t in categories
+                },
+                table,
+                detector,
+                int(calibration_trials),
+                n_draws=max_draws,
+                filter=filter,
+                correlations=None
+                if corr_fit is None
+                else correlations_from_fit(corr_fit, max_draws),
+                progress=progress,
+            )
+        else:
+            from scrppl.kway.calibration import calibration_trials as fit_split_trials
+
+            ds = fit_split_trials(
+                k_cal,
+                fit.model
+                if corr_fit is None
+                else with_correlations(fit.model, *correlations_from_fit(corr_fit, max_draws)),
+                table,
+                detector,
+                int(calibration_trials),
+                filter=filter,
+                transform=trans,
+                categories=categories,
+                progress=progress,
+            )
+        calibration_fit = _fit_calibration(ds, int(calibration_trials))
+        what = (
+            "each left out of the models by PSIS"
+            if calibration == "loo"
+            else "the models were fitted to"
         )
         log(
-            f"[kway] {detector}: temperature {calibration['temperature']:.3f} from "
-            f"{calibration_trials} trials on the fit instances"
+            f"[kway] {detector}: temperature {calibration_fit['temperature']:.3f} from "
+            f"{calibration_trials} trials on the fit instances ({what})"
         )
-    temperature = 1.0 if calibration is None else calibration["temperature"]
+        if calibration == "loo":
+            loo = calibration_fit["loo"]
+            log(
+                f"[kway] {detector}: Pareto k above {loo['threshold']} for {loo['above']} of "
+                f"{loo['pairs']} (object, target) pairs (largest {loo['max']:.2f})"
+            )
+    temperature = 1.0 if calibration_fit is None else calibration_fit["temperature"]
     results = []
     for n, draws, k in ((trials, max_draws, 0), (large_trials, large_max_draws, 1)):
         if n <= 0:
@@ -249,8 +298,8 @@ def run_kway_study(
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
     summary = summary_dict(results[0], results[1], fit.info)
-    if calibration is not None:
-        summary["calibration_fit"] = calibration
+    if calibration_fit is not None:
+        summary["calibration_fit"] = calibration_fit
     if corr_fit is not None:
         summary["correlations"] = correlation_summary(corr_fit)
     if (
@@ -260,26 +309,21 @@ def run_kway_study(
     return KwayStudy(fit, results[0], results[1], summary)
 
 
-def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
-    """The temperature fitted on random-view trials of the ``fit`` instances, and what it does there."""
-    from scrppl.kway.calibration import (
-        calibration_trials,
-        class_log_loss,
-        fit_temperature,
-        temper_methods,
-    )
+def _fit_calibration(ds: xr.Dataset, n_trials: int) -> dict:
+    """The temperature fitted on random-view trials ``ds`` of the ``fit`` instances, and what it does there."""
+    from scrppl.kway.calibration import class_log_loss, fit_temperature, temper_methods
 
-    ds = calibration_trials(key, model, table, detector, n_trials, **opts)
     p = ds["p_class"].sel({"method": "random"}).values
     truth = ds["category_index"].values
     temperature = fit_temperature(p, truth)
     tempered = ds.copy()
     tempered["p_class"] = (ds["p_class"].dims, temper_methods(ds, temperature))
     raw_cal, new_cal = kway_calibration(ds), kway_calibration(tempered)
-    return {
+    out = {
         "temperature": temperature,
         "trials": int(n_trials),
         "split": "fit",
+        "method": ds.attrs.get("calibration", "fit-instances"),
         "log_loss": {
             "raw": class_log_loss(p, truth),
             "tempered": class_log_loss(p, truth, temperature),
@@ -294,6 +338,18 @@ def _fit_calibration(key, model, table, detector, n_trials, **opts) -> dict:
             ],
         },
     }
+    if "pareto_k" in ds:
+        from scrppl.models.loo import PARETO_K_THRESHOLD
+
+        k = ds["pareto_k"].values
+        out["loo"] = {
+            "threshold": PARETO_K_THRESHOLD,
+            "pairs": int(k.size),
+            "above": int((k > PARETO_K_THRESHOLD).sum()),
+            "max": round(float(np.nanmax(k)), 3),
+            "objects": int(k.shape[0]),
+        }
+    return out
 
 
 def correlation_path(models_dir: str | Path, detector: str) -> Path:
