@@ -12,6 +12,12 @@ the same ``test`` trials as ``bench_kway_correlated.py``'s (same keys) with the 
 Adds ``cross_fitted_temperature`` to the record's ``<key>`` entry in
 ``benchmarks/results/kway-correlated.json``. Run (about 10 minutes on two cores):
 ``python benchmarks/bench_kway_crossfit.py RESULTS --key KEY [--trials N] [--fold-trials N]``.
+
+``--loo`` measures instead what ``scrppl kway`` now does without refits
+(:func:`scrppl.kway.calibration.loo_calibration_trials`): each ``fit`` object's trials run with the run's
+posteriors reweighted to leave that object out (Pareto-smoothed importance sampling), as many trials as
+the folds' together; the temperature is applied to the same ``test`` trials, and the entry is
+``loo_temperature``, beside the refits' for comparison (under a minute).
 """
 
 from __future__ import annotations
@@ -40,15 +46,11 @@ def main() -> None:
     from scrppl.kway import correlation as CR
     from scrppl.kway.calibration import (
         calibration_trials,
-        class_log_loss,
         fit_temperature,
-        temper_methods,
     )
-    from scrppl.kway.experiment import kway_calibration, make_kway_trials, run_kway_experiment
     from scrppl.kway.models import fit_kway, kway_from_fits
     from scrppl.models.mcmc import SamplerConfig
     from scrppl.models.transforms import apply as transform_apply
-    from scrppl.sim.metrics import expected_calibration_error
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("results", type=Path, help="a finished full run's output folder")
@@ -60,7 +62,14 @@ def main() -> None:
     ap.add_argument("--detector", default="dpm")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--draws", type=int, default=8)
+    ap.add_argument(
+        "--loo",
+        action="store_true",
+        help="leave each fit object out by PSIS instead of refitting (entry loo_temperature)",
+    )
     args = ap.parse_args()
+    if args.loo:
+        return loo_main(args)
 
     table = xr.load_dataset(args.results / "responses.nc")
     det = args.detector
@@ -121,10 +130,63 @@ def main() -> None:
     temperature = fit_temperature(p_cf, t_cf)
     print(f"cross-fitted temperature {temperature:.4f}", flush=True)
 
-    # the test trials of bench_kway_correlated.py (same keys), random views, the run's own models
-    tree = CR.load_correlations(args.results / "kway-correlations" / f"correlations-{det}.nc")
-    corr = CR.with_correlations(run_fit.model, *CR.correlations_from_fit(tree, args.draws))
-    trials = make_kway_trials(jax.random.key(args.seed + 1), table, det, args.trials)
+    out = {
+        "command": "python benchmarks/bench_kway_crossfit.py RESULTS --key "
+        f"{args.key} --trials {args.trials} --fold-trials {args.fold_trials}",
+        "filter": "correlated",
+        "folds": folds,
+        "fold_trials": args.fold_trials,
+        **_scored(p_cf, t_cf, temperature, "cross_fitted"),
+    }
+    out.update(_on_test_trials(args, table, run_fit, cats, temperature))
+    out["seconds"] = round(time.perf_counter() - t_start, 1)
+    _write(args.key, "cross_fitted_temperature", out)
+
+
+def _scored(p, truth, temperature, name) -> dict:
+    """The temperature and the log loss and top-label errors of the trials it was fitted on."""
+    from scrppl.kway.calibration import class_log_loss
+    from scrppl.sim.metrics import expected_calibration_error
+
+    return {
+        "temperature": round(temperature, 4),
+        f"{name}_log_loss": {
+            "raw": round(class_log_loss(p, truth), 4),
+            "tempered": round(class_log_loss(p, truth, temperature), 4),
+        },
+        f"{name}_ece_top_after_1_2_4": [
+            round(
+                expected_calibration_error(
+                    p[:, k - 1].max(-1), p[:, k - 1].argmax(-1) == truth, 10
+                ),
+                4,
+            )
+            for k in (1, 2, 4)
+        ],
+    }
+
+
+def _correlations(args):
+    from scrppl.kway import correlation as CR
+
+    det = args.detector
+    for path in (
+        args.results / "models" / f"correlations-{det}.nc",  # where scrppl kway keeps it now
+        args.results / "kway-correlations" / f"correlations-{det}.nc",  # older runs
+    ):
+        if path.exists():
+            return CR.correlations_from_fit(CR.load_correlations(path), args.draws)
+    raise FileNotFoundError(f"no correlation fit of {det!r} under {args.results}")
+
+
+def _on_test_trials(args, table, run_fit, cats, temperature) -> dict:
+    """The test trials of bench_kway_correlated.py (same keys), random views, the run's own models."""
+    from scrppl.kway import correlation as CR
+    from scrppl.kway.calibration import class_log_loss, temper_methods
+    from scrppl.kway.experiment import kway_calibration, make_kway_trials, run_kway_experiment
+
+    corr = CR.with_correlations(run_fit.model, *_correlations(args))
+    trials = make_kway_trials(jax.random.key(args.seed + 1), table, args.detector, args.trials)
     test = run_kway_experiment(
         jax.random.key(args.seed + 2),
         corr,
@@ -139,26 +201,7 @@ def main() -> None:
     raw_cal, hot_cal = kway_calibration(test), kway_calibration(hot)
     truth = test["category_index"].values
     pick = {"method": "random"}
-    out = {
-        "command": "python benchmarks/bench_kway_crossfit.py RESULTS --key "
-        f"{args.key} --trials {args.trials} --fold-trials {args.fold_trials}",
-        "filter": "correlated",
-        "folds": folds,
-        "fold_trials": args.fold_trials,
-        "temperature": round(temperature, 4),
-        "cross_fitted_log_loss": {
-            "raw": round(class_log_loss(p_cf, t_cf), 4),
-            "tempered": round(class_log_loss(p_cf, t_cf, temperature), 4),
-        },
-        "cross_fitted_ece_top_after_1_2_4": [
-            round(
-                expected_calibration_error(
-                    p_cf[:, k - 1].max(-1), p_cf[:, k - 1].argmax(-1) == t_cf, 10
-                ),
-                4,
-            )
-            for k in (1, 2, 4)
-        ],
+    return {
         "test_trials": args.trials,
         "test_ece_top_after_1_2_4": {
             "raw": [round(float(x), 4) for x in raw_cal["ece_top"].sel(pick).values],
@@ -168,13 +211,74 @@ def main() -> None:
             "raw": round(class_log_loss(test["p_class"].sel(pick).values, truth), 4),
             "tempered": round(class_log_loss(hot["p_class"].sel(pick).values, truth), 4),
         },
-        "seconds": round(time.perf_counter() - t_start, 1),
     }
+
+
+def _write(key: str, entry: str, out: dict) -> None:
     print(json.dumps(out), flush=True)
     record = json.loads(RESULTS.read_text())
-    record[args.key]["cross_fitted_temperature"] = out
+    record[key][entry] = out
     RESULTS.write_text(json.dumps(record, indent=1) + "\n")
     print(f"wrote {RESULTS}")
+
+
+def loo_main(args) -> None:
+    """``--loo``: the temperature of :func:`~scrppl.kway.calibration.loo_calibration_trials`, no refits."""
+    from scrppl.kway.calibration import fit_temperature, loo_calibration_trials
+    from scrppl.kway.models import kway_from_fits
+    from scrppl.models.io import load_posterior, model_path
+    from scrppl.models.loo import PARETO_K_THRESHOLD
+
+    table = xr.load_dataset(args.results / "responses.nc")
+    det = args.detector
+    cats = [str(c) for c in table["category"].values]
+    split = table["split"].values.astype(str)
+    n_folds = min(int((split[c] == "fit").sum()) for c in range(len(cats)))
+    n_trials = n_folds * args.fold_trials  # as many trials as the refits' folds together
+    run_fit = kway_from_fits(args.results / "models", det, cats, n_draws=args.draws)
+    trees = {
+        t: load_posterior(model_path(args.results / "models", "hierarchical", det, t)) for t in cats
+    }
+    t0 = time.perf_counter()
+    ds = loo_calibration_trials(
+        jax.random.fold_in(jax.random.key(args.seed), 5),  # the key scrppl kway uses
+        trees,
+        table,
+        det,
+        n_trials,
+        n_draws=args.draws,
+        filter="correlated",
+        correlations=_correlations(args),
+    )
+    p = ds["p_class"].sel({"method": "random"}).values
+    truth = ds["category_index"].values
+    temperature = fit_temperature(p, truth)
+    seconds = time.perf_counter() - t0
+    k = ds["pareto_k"].values
+    out = {
+        "command": f"python benchmarks/bench_kway_crossfit.py RESULTS --key {args.key} --loo "
+        f"--trials {args.trials} --fold-trials {args.fold_trials}",
+        "filter": "correlated",
+        "trials": n_trials,
+        "pareto_k": {
+            "pairs": int(k.size),
+            f"above_{PARETO_K_THRESHOLD}": int((k > PARETO_K_THRESHOLD).sum()),
+            "max": round(float(np.nanmax(k)), 3),
+            "median": round(float(np.nanmedian(k)), 3),
+            "above_by_kind": {
+                "own_category": int(
+                    sum(
+                        k[i, cats.index(o.split("/")[0])] > PARETO_K_THRESHOLD
+                        for i, o in enumerate(ds["object"].values.tolist())
+                    )
+                ),
+            },
+        },
+        **_scored(p, truth, temperature, "loo"),
+        "seconds_trials_and_weights": round(seconds, 1),
+    }
+    out.update(_on_test_trials(args, table, run_fit, cats, temperature))
+    _write(args.key, "loo_temperature", out)
 
 
 def fit_kway_plug(trees, cats):
