@@ -2,7 +2,9 @@
 
 The naive-Bayes K-way update with posterior draws and instance effects, the collapse of a mixture over
 posterior draws into one Gaussian (the planner's collapsed update), the one-vs-rest baseline of ``K``
-binary filters, what correlated views are worth, and the log loss of tempered class probabilities. The references are :mod:`scrppl.kway` and :mod:`scrppl.belief`; the inputs are small
+binary filters, what correlated views are worth, the log loss of tempered class probabilities, and the
+importance weights that leave an object out of a fit. The references are :mod:`scrppl.kway`,
+:mod:`scrppl.belief` and :mod:`scrppl.models.loo`; the inputs are small
 random K-way models (:class:`~scrppl.kway.models.KwayModel`) built here from fixed seeds.
 """
 
@@ -25,6 +27,7 @@ __all__ = [
     "check_11_3",
     "check_11_4",
     "check_11_5",
+    "check_11_6",
     "random_kway_model",
     "binary_from_kway",
     "one_vs_rest_reference",
@@ -635,3 +638,89 @@ def check_11_5(tempered_log_loss) -> str:
         convert=lambda x: float(x) if np.ndim(x) == 0 else x,
     )
     return f"agrees with scrppl.kway.calibration.class_log_loss on {n} inputs"
+
+
+# -- 11.6 leaving an object out without refitting ----------------------------------------------------
+def _loo_weights_ref(loglik):
+    """Plain (unsmoothed) leave-one-out importance weights ``(I, S)``: ``w_is ∝ 1 / p(y_i | theta_s)``."""
+    lw = -np.asarray(loglik, float).T
+    return np.exp(lw - logsumexp(lw, axis=1, keepdims=True))
+
+
+def _loo_weights_wrong(loglik, *, how):
+    ll = np.asarray(loglik, float).T
+    if how == "likelihood":  # weights the draws the object liked most
+        return np.exp(ll - logsumexp(ll, axis=1, keepdims=True))
+    lw = -ll
+    w = np.exp(lw - lw.max(axis=1, keepdims=True))
+    if how == "unnormalised":
+        return w
+    if how == "over_objects":
+        return w / w.sum(axis=0, keepdims=True)
+    raise ValueError(how)
+
+
+_LOO_MISTAKES = [
+    Mistake(
+        "the weights are 1 / p(y_i | theta_s): without object i the draws that explained it best lose "
+        "weight, so take exp(-loglik), not exp(loglik).",
+        partial(_loo_weights_wrong, how="likelihood"),
+    ),
+    Mistake(
+        "normalise each object's weights to sum to one over the draws.",
+        partial(_loo_weights_wrong, how="unnormalised"),
+    ),
+    Mistake(
+        "normalise over the draws (for each left-out object), not over the objects.",
+        partial(_loo_weights_wrong, how="over_objects"),
+    ),
+]
+
+
+def _loo_cases() -> list[Case]:
+    out = []
+    for seed, s, i, scale, label in (
+        (1, 6, 2, 1.0, "6 draws, 2 objects"),
+        (2, 50, 4, 3.0, "50 draws, 4 objects, log densities spread over a few nats"),
+        (3, 10, 3, 0.0, "every draw explains every object equally: even weights"),
+        (
+            4,
+            40,
+            5,
+            2.0,
+            "log densities near -900 (exp(900) overflows: subtract the largest first)",
+        ),
+    ):
+        rng = np.random.default_rng([seed, 116])
+        ll = rng.normal(-3.0, 1.0, size=(s, i)) * scale
+        if seed == 4:
+            ll = ll - 900.0
+        out.append(Case((ll,), label))
+    return out
+
+
+@exercise(
+    "11.6",
+    "Leaving an object out without refitting",
+    "medium",
+    reference=lambda: (_loo_weights_ref,),
+    wrong=lambda: [(m.fn,) for m in _LOO_MISTAKES[:2]],
+)
+def check_11_6(loo_weights) -> str:
+    """Check exercise 11.6.
+
+    Compares ``loo_weights(loglik)`` with the plain importance weights that
+    :func:`scrppl.models.loo.loo_log_weights` smooths.
+    """
+    n = check_function(
+        loo_weights,
+        _loo_weights_ref,
+        _loo_cases(),
+        name="loo_weights(loglik)",
+        rtol=1e-6,
+        atol=1e-12,
+        mistakes=_LOO_MISTAKES,
+        hint="log weights -loglik.T (objects x draws); subtract each row's largest before np.exp, then "
+        "divide each row by its sum.",
+    )
+    return f"agrees with the plain importance weights on {n} inputs"
