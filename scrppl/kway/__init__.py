@@ -23,8 +23,9 @@ detectors of one family, and the robot plans where to look to tell the categorie
 * :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
   binary filters, accuracy, confusion matrices;
 * :mod:`scrppl.kway.calibration` -- temperature scaling of the K-way class probabilities, its temperature
-  fitted on random-view trials of the ``fit`` instances (the filter is over-confident after one or two
-  views even there).
+  fitted on random-view trials of the ``fit`` instances, each run with the models' posteriors without that
+  object (Pareto-smoothed importance sampling, :mod:`scrppl.models.loo`), so that the temperature is that
+  of objects the models have not seen.
 """
 
 from scrppl.kway.calibration import fit_temperature, temper
