@@ -203,6 +203,11 @@ def test_loo_models_resample_each_targets_own_draws(rng, tmp_path):
             for j in range(5):
                 d = np.abs(full - np.asarray(model.mu[ti, j])[None]).max(axis=(1, 2, 3, 4))
                 assert d.min() < 1e-6  # one of the fit's own draws
+    few = {t: tree.isel(draw=slice(0, 10)) for t, tree in trees.items()}  # 2 chains x 10 draws
+    with pytest.raises(
+        ValueError, match="dpm/a: 20 posterior draws are too few.*--calibration fit"
+    ):
+        C.loo_models(jax.random.key(3), few, table, "dpm", objects, n_draws=5)
     test_object = ("a", int(table["instance"].values[2]))  # instance 2 is in the test split
     with pytest.raises(ValueError, match="not among the fit instances"):
         C.loo_models(jax.random.key(3), trees, table, "dpm", [test_object], n_draws=5)

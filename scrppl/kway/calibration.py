@@ -242,7 +242,10 @@ def loo_models(key, posteriors, table, detector: str, objects, n_draws: int):
         try:
             lw, k = loo_log_weights(object_log_likelihood(tree, data))
         except ValueError as err:
-            raise ValueError(f"{detector}/{t}: {err}") from None
+            raise ValueError(
+                f"{detector}/{t}: {err}; the fit objects cannot be left out of this fit "
+                "(scrppl kway --calibration fit runs their trials with the models as fitted)"
+            ) from None
         full = kway_response_model(tree, categories)
         for oi, obj in enumerate(objects):
             r = rows[obj]
