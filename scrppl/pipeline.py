@@ -313,6 +313,7 @@ def run_stages(
     force: bool = False,
     log: Callable[[str], None] = lambda msg: print(msg, flush=True),
     cpu_seconds: dict[str, float] | None = None,
+    machine_seconds: dict[str, float] | None = None,
 ) -> tuple[int, dict[str, float | str]]:
     """Run every stage that is not current, in order, stopping at the first failing command.
 
@@ -338,6 +339,10 @@ def run_stages(
         those of its child processes that ended during the stage (the spawned pools of rendering,
         training and scoring, a local Dask cluster's workers): :func:`cpu_time`; a background stage's
         are its child process's own (and its children's), which no other stage counts.
+    machine_seconds
+        If given, filled with the busy CPU seconds of the whole machine during each stage that ran in
+        turn (:func:`machine_busy_seconds`; a background stage's beside it included): over the stage's
+        wall time, how many cores were busy. Left empty where the machine does not say.
 
     Returns
     -------
@@ -373,6 +378,7 @@ def run_stages(
             log(f"[reproduce] {stage.name}: running")
             t0 = time.perf_counter()
             c0 = cpu_time()
+            b0 = machine_busy_seconds()
             for argv in argvs:
                 status = run_command(argv)
                 if status:
@@ -385,6 +391,9 @@ def run_stages(
             cpu = round(cpu_time() - c0, 1)
             if cpu_seconds is not None:
                 cpu_seconds[stage.name] = cpu
+            b1 = machine_busy_seconds()
+            if machine_seconds is not None and b0 is not None and b1 is not None:
+                machine_seconds[stage.name] = round(b1 - b0, 1)
             log(f"[reproduce] {stage.name}: done in {timings[stage.name]} s ({cpu} CPU-seconds)")
         while running:
             job = running.pop(0)
@@ -559,6 +568,27 @@ def cpu_time() -> float:
     own = resource.getrusage(resource.RUSAGE_SELF)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def machine_busy_seconds(stat: str | Path = "/proc/stat") -> float | None:
+    """CPU seconds the whole machine has spent busy since it started, summed over its cores.
+
+    From the first line of Linux's ``/proc/stat``: user, nice, system, irq, softirq and steal time (not
+    idle or waiting on I/O), in clock ticks. The difference over a stage is what every process did in
+    it, this stage's and a background stage's beside it (and anything else running). ``None`` where the
+    file cannot be read (not Linux).
+    """
+    import os
+
+    try:
+        first = Path(stat).read_text().splitlines()[0].split()
+        ticks = os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError, AttributeError):
+        return None
+    if not first or first[0] != "cpu" or len(first) < 9:
+        return None
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(x) for x in first[1:9])
+    return (user + nice + system + irq + softirq + steal) / ticks
 
 
 def machine_description() -> dict:

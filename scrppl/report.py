@@ -183,18 +183,22 @@ def _section_timings(out: Path) -> str:
     cpu = t.get("cpu_seconds") or {}
     machine = t.get("machine") or {}
     background = set(t.get("background") or ())
-    meta = ("cpu_seconds", "machine", "background", "wall_seconds_total")
+    busy = t.get("machine_busy_seconds") or {}
+    meta = ("cpu_seconds", "machine", "background", "wall_seconds_total", "machine_busy_seconds")
     stages = {k: v for k, v in t.items() if k not in meta}
     rows = []
     for k, v in stages.items():
         c = cpu.get(k)
         ratio = c / v if isinstance(v, int | float) and v > 0 and c is not None else None
+        b = busy.get(k)
+        cores = b / v if isinstance(v, int | float) and v > 0 and b is not None else None
         rows.append(
             {
                 "stage": f"{k} (background)" if k in background else k,
                 "wall s": _num(v, 1),
                 "CPU s": _num(c, 1) if c is not None else "",
                 "CPU / wall": _num(ratio, 2) if ratio is not None else "",
+                "cores busy": _num(cores, 2) if cores is not None else "",
             }
         )
     # a background stage's seconds overlap the others': the run's own wall time when it was recorded
@@ -206,12 +210,14 @@ def _section_timings(out: Path) -> str:
             if isinstance(v, int | float) and k not in background
         )
     total_cpu = sum(float(v) for v in cpu.values())
+    b_total = busy.get("total")
     rows.append(
         {
             "stage": "**total**",
             "wall s": _num(total, 1),
             "CPU s": _num(total_cpu, 1) if cpu else "",
             "CPU / wall": _num(total_cpu / total, 2) if cpu and total > 0 else "",
+            "cores busy": _num(b_total / total, 2) if b_total is not None and total > 0 else "",
         }
     )
     where = (
@@ -219,9 +225,16 @@ def _section_timings(out: Path) -> str:
     )
     cols = ["stage", "wall s", "CPU s", "CPU / wall"] if cpu else ["stage", "wall s"]
     note = ""
+    if busy:
+        cols.append("cores busy")
+        note += (
+            "\n\n*Cores busy* is the whole machine's busy CPU time during the stage over its wall time "
+            "(Linux's `/proc/stat`): the stage's own CPU and that of a background stage running beside "
+            "it (and of anything else the machine ran)."
+        )
     if background:
         names = ", ".join(sorted(background))
-        note = (
+        note += (
             f"\n\nThe {names} stage ran in the background, at a lower priority, beside the stages after "
             "it, taking the cycles they left idle: its wall time overlaps theirs, and the total is the "
             "run's own wall time, not the sum of the stages'."

@@ -258,6 +258,16 @@ def test_report_rounds_every_number_in_its_tables(tmp_path):
     text = write_report(out, profile="quick", seed=1).read_text()
     assert "| sweep (background) | 50.0 | 60.0 | 1.20 |" in text
     assert "| **total** | 110.0 | 219.0 | 1.99 |" in text and "not the sum" in text
+    assert "cores busy" not in text  # a record without the machine's busy seconds: no such column
+    # with the machine's busy seconds: a column of cores busy per stage run in turn and for the run
+    record = json.loads((out / "timings.json").read_text())
+    record["machine_busy_seconds"] = {"detect": 133.0, "fit": 57.0, "total": 215.6}
+    (out / "timings.json").write_text(json.dumps(record))
+    text = write_report(out, profile="quick", seed=1).read_text()
+    assert "| detect | 70.0 | 126.0 | 1.80 | 1.90 |" in text
+    assert "| fit | 30.0 | 33.0 | 1.10 | 1.90 |" in text  # the background stage kept the cores busy
+    assert "| sweep (background) | 50.0 | 60.0 | 1.20 |  |" in text
+    assert "| **total** | 110.0 | 219.0 | 1.99 | 1.96 |" in text and "/proc/stat" in text
     # a fit with the instance x azimuth effect (scrppl fit --azimuth-effect auto on several rings)
     diag_path = out / "models" / "diagnostics.json"
     diag = json.loads(diag_path.read_text())

@@ -110,6 +110,51 @@ def test_cpu_time_counts_this_process_and_its_ended_children():
     assert cpu_time() - t0 > 0.05
 
 
+def test_machine_busy_seconds_reads_the_busy_fields_of_proc_stat(tmp_path):
+    """user + nice + system + irq + softirq + steal, in clock ticks; idle and iowait left out; None for a
+    file that is not Linux's /proc/stat."""
+    import os
+
+    from scrppl.pipeline import machine_busy_seconds
+
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  100 20 30 1000 50 5 7 11 0 0\ncpu0 50 10 15 500 25 2 3 5 0 0\n")
+    ticks = os.sysconf("SC_CLK_TCK")
+    assert machine_busy_seconds(stat) == (100 + 20 + 30 + 5 + 7 + 11) / ticks
+    for bad in ("", "intr 1 2 3\n", "cpu 1 2\n"):
+        stat.write_text(bad)
+        assert machine_busy_seconds(stat) is None
+    assert machine_busy_seconds(tmp_path / "missing") is None
+
+
+def test_run_stages_records_how_busy_the_machine_was_during_each_stage(tmp_path):
+    """A stage that burns CPU in a child process: the machine's busy seconds over the stage cover it
+    (at least the child's own CPU, less a tick's rounding), and only stages run in turn get them."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    from scrppl.pipeline import machine_busy_seconds
+
+    if machine_busy_seconds() is None:
+        pytest.skip("this machine has no /proc/stat")
+    burn = Stage("burn", "scrppl.pipeline", (("x",),), (), (tmp_path / "never",))
+
+    def run_command(argv):
+        subprocess.run(
+            [sys.executable, "-c", "x = 0\nfor i in range(6_000_000): x += i"], check=True
+        )
+        return 0
+
+    cpu, busy = {}, {}
+    status, _ = run_stages(
+        [burn], run_command, log=lambda m: None, cpu_seconds=cpu, machine_seconds=busy
+    )
+    assert status == 0 and set(busy) == {"burn"}
+    assert busy["burn"] >= cpu["burn"] - 0.05 > 0.1
+
+
 def test_a_fit_stage_with_fits_of_another_model_version_is_not_up_to_date(tmp_path):
     """After the model changes (MODEL_VERSION), `scrppl reproduce` must refit, not report 'up to date' and
     then fail in the next stage on a fit it refuses to load."""

@@ -122,19 +122,26 @@ def _run(args: argparse.Namespace) -> int:
             flush=True,
         )
     cpu: dict[str, float] = {}
+    busy: dict[str, float] = {}
     import time
 
+    from scrppl.pipeline import machine_busy_seconds, machine_description
+
     t0 = time.perf_counter()
+    b0 = machine_busy_seconds()
     with _stage_scheduler(args) as scheduler:
         pipeline = stages(args, scheduler)
-        status, timings = run_stages(pipeline, main, force=args.force, cpu_seconds=cpu)
+        status, timings = run_stages(
+            pipeline, main, force=args.force, cpu_seconds=cpu, machine_seconds=busy
+        )
     if status:
         return status
-    from scrppl.pipeline import machine_description
+    b1 = machine_busy_seconds()
 
     # wall seconds per stage (or why it did not run) at the top level, as before; CPU seconds beside them;
     # the stages that ran in the background (beside others: the stages' wall seconds overlap) and the
-    # run's own wall seconds
+    # run's own wall seconds; the whole machine's busy CPU seconds during each stage in turn and the run
+    # (a background stage's beside them included), where the machine says
     record = dict(
         timings,
         cpu_seconds=cpu,
@@ -142,6 +149,8 @@ def _run(args: argparse.Namespace) -> int:
         background=[s.name for s in pipeline if s.background and s.name in cpu],
         wall_seconds_total=round(time.perf_counter() - t0, 1),
     )
+    if busy and b0 is not None and b1 is not None:
+        record["machine_busy_seconds"] = dict(busy, total=round(b1 - b0, 1))
     (out / "timings.json").write_text(json.dumps(record, indent=2))
     path = write_report(
         out,
