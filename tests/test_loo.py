@@ -158,3 +158,23 @@ def test_resampled_draws_avoid_those_the_left_out_object_explains_best(key):
     assert np.isnan(k[0])  # its largest ratios are all e^5: no tail to fit, the raw weights kept
     np.testing.assert_allclose(np.exp(lw[0, 100:]).sum(), 1 / (1 + np.exp(-5.0)), rtol=1e-9)
     assert k[1] < 0.5  # an object that hardly moved the posterior: weights nearly even
+
+
+def test_category_shifts_sum_to_zero_and_need_the_contrasts(rng):
+    """The shared reader of the negatives' category shifts: per draw they sum to zero with a spread of
+    scale times the contrasts' norm; none to separate with one non-target category; a fit without the
+    contrasts cannot separate several."""
+    from scrppl.models.predictive import category_shifts
+
+    tree = _posterior(rng, ["n0", "n1", "n2"], scale=1.5)
+    d = category_shifts(tree, 3)
+    c = tree["posterior"]["category_contrast"].values.reshape(120, -1)
+    assert d.shape == (120, 3)
+    np.testing.assert_allclose(d.sum(1), 0.0, atol=1e-9)
+    np.testing.assert_allclose((d**2).sum(1), 1.5**2 * (c**2).sum(1), rtol=1e-9)
+    assert category_shifts(tree, 1).shape == (120, 1) and not category_shifts(tree, 1).any()
+    bare = xr.DataTree.from_dict(
+        {"posterior": tree["posterior"].to_dataset().drop_vars("category_contrast")}
+    )
+    with pytest.raises(ValueError, match="category_contrast"):
+        category_shifts(bare, 3)

@@ -138,7 +138,7 @@ def test_run_stages_records_how_busy_the_machine_was_during_each_stage(tmp_path)
     from scrppl.pipeline import machine_busy_seconds
 
     if machine_busy_seconds() is None:
-        pytest.skip("this machine has no /proc/stat")
+        pytest.skip("not Linux: no /proc/stat to read the machine's busy time from")
     burn = Stage("burn", "scrppl.pipeline", (("x",),), (), (tmp_path / "never",))
 
     def run_command(argv):

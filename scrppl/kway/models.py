@@ -288,8 +288,7 @@ def kway_response_model(
     n_draws
         Keep this many draws, evenly spaced over the pooled chains (default: all).
     """
-    from scrppl.models.hierarchical import sum_to_zero_basis
-    from scrppl.models.predictive import draw_index
+    from scrppl.models.predictive import category_shifts, draw_index
 
     if "posterior" not in posterior.children:
         raise ValueError("not a fitted posterior: the DataTree has no 'posterior' group")
@@ -317,11 +316,7 @@ def kway_response_model(
     if "omega" in post:  # an instance x azimuth effect, read for a ring as the binary model does
         sigma2 = np.sqrt(sigma2**2 + flat("omega")[:, :, None] ** 2)
     n = mu2.shape[0]
-    delta = np.zeros((n, len(negs)))
-    if len(negs) > 1:
-        if "category_contrast" not in post:
-            raise ValueError("posterior has no 'category_contrast': cannot separate the categories")
-        delta = float(meta["scale"]) * flat("category_contrast") @ sum_to_zero_basis(len(negs)).T
+    delta = category_shifts(posterior, len(negs))
     k_classes = len(categories)
     mu = np.empty((n, k_classes) + mu2.shape[2:])
     sigma = np.empty_like(mu)

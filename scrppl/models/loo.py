@@ -81,7 +81,7 @@ def object_log_likelihood(posterior: xr.DataTree, data: ViewData) -> np.ndarray:
         The data it was fitted to (:func:`scrppl.models.data.extract_view_data` with the fit's split and
         transform); the non-target categories in the fit's order.
     """
-    from scrppl.models.hierarchical import sum_to_zero_basis
+    from scrppl.models.predictive import category_shifts
 
     if "posterior" not in posterior.children:
         raise ValueError("not a fitted posterior: the DataTree has no 'posterior' group")
@@ -106,9 +106,7 @@ def object_log_likelihood(posterior: xr.DataTree, data: ViewData) -> np.ndarray:
     o = np.asarray(data.o).astype(int)
     shift = np.zeros((mu.shape[0], len(o)))
     if n_neg > 1 and (o == 0).any():
-        if "category_contrast" not in post:
-            raise ValueError("posterior has no 'category_contrast': cannot place the negatives")
-        delta = float(meta["scale"]) * _flat(post, "category_contrast") @ sum_to_zero_basis(n_neg).T
+        delta = category_shifts(posterior, n_neg)
         neg = np.asarray(data.neg_onehot).argmax(1)
         shift = np.where(o == 1, 0.0, delta[:, neg])
     m = mu[:, o] + shift[:, :, None, None, None]  # (N, I, A, E, S)

@@ -24,7 +24,7 @@ import xarray as xr
 
 from scrppl.models.response import ResponseModel
 
-__all__ = ["to_response_model", "azimuth_sd", "draw_index"]
+__all__ = ["to_response_model", "azimuth_sd", "draw_index", "category_shifts"]
 
 
 #: What :func:`to_response_model` adds to ``tau_0^2``, in units of ``kappa^2``, for ``K`` categories.
@@ -33,6 +33,26 @@ NEGATIVE_SPREAD = {
     "fitted": lambda k: 1.0 - 1.0 / k,
     "mean": lambda k: 0.0,
 }
+
+
+def category_shifts(posterior: xr.DataTree, n_neg: int) -> np.ndarray:
+    """Each non-target category's shift of the absent class's mean, per pooled draw, ``(N, n_neg)``.
+
+    The fit writes the ``n_neg`` category effects as orthonormal contrasts (``category_contrast``, sum to
+    zero) on the standardised scale; on the response scale they are ``scale * contrast @ H^T``. Zeros for a
+    single non-target category (no contrast is fitted).
+    """
+    from scrppl.models.hierarchical import sum_to_zero_basis
+
+    post = posterior["posterior"]
+    n = int(np.prod([post.sizes[d] for d in ("chain", "draw")]))
+    if n_neg <= 1:
+        return np.zeros((n, max(n_neg, 0)))
+    if "category_contrast" not in post:
+        raise ValueError("posterior has no 'category_contrast': cannot separate the categories")
+    meta = json.loads(posterior.attrs.get("meta", "{}"))
+    c = np.asarray(post["category_contrast"].values, np.float64).reshape(n, -1)
+    return float(meta["scale"]) * c @ sum_to_zero_basis(n_neg).T
 
 
 def draw_index(n_total: int, n_draws: int | None) -> np.ndarray | None:
