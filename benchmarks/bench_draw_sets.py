@@ -1,0 +1,130 @@
+"""How much the experiment's numbers depend on which posterior draws the filter reads (issue 23).
+
+`scrppl simulate`'s large experiment reads each hierarchical fit through ``large_max_draws`` posterior draws
+(8 in the full profile), evenly spaced over the pooled chains, and the report's paired interval of planning
+minus random counts the trials only. This script reruns the experiment on one results folder with other
+draws of the *same* fits: for set ``s`` every hierarchical posterior's draws are rotated within each chain
+by ``s`` times (draws per chain / sets), so the evenly spaced draws the filter keeps are other draws of the
+same posterior; the trials, responses and keys stay as they are. It records, per target, the views a random
+view needs, planning minus random and its interval, for each set, in
+``benchmarks/results/draw-sets.json``::
+
+    python benchmarks/bench_draw_sets.py RESULTS --sets 4
+
+``RESULTS`` is a full-profile results folder after ``scrppl simulate`` (``responses.nc``, ``models/``,
+``run.json``); it is not changed (each set runs in a scratch folder beside the record).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RECORD = Path(__file__).parent / "results" / "draw-sets.json"
+METHOD = "hierarchical+instance"
+
+
+def rotate_draws(models: Path, shift_fraction: float) -> int:
+    """Rotate the ``draw`` axis of every hierarchical posterior in ``models`` by a fraction of its length."""
+    from scrppl.models.io import load_posterior, save_posterior
+
+    n = 0
+    for path in sorted(models.glob("hierarchical-*.nc")):
+        tree = load_posterior(path)
+        post = tree["posterior"].to_dataset()
+        shift = int(round(shift_fraction * post.sizes["draw"]))
+        tree["posterior"] = post.roll(draw=shift, roll_coords=False)
+        save_posterior(path, tree)
+        n += 1
+    return n
+
+
+def run_set(results: Path, s: int, sets: int, seed: int) -> dict:
+    """Run the experiment with draw set ``s`` in a scratch copy of ``results``; per-target numbers."""
+    with tempfile.TemporaryDirectory(dir=RECORD.parent) as tmp:
+        work = Path(tmp)
+        for name in ("responses.nc", "run.json"):
+            shutil.copy2(results / name, work / name)
+        shutil.copytree(results / "models", work / "models")
+        rotated = rotate_draws(work / "models", s / sets) if s else 0
+        run = json.loads((results / "run.json").read_text())
+        t0 = time.perf_counter()
+        cmd = [sys.executable, "-m", "scrppl", "simulate", "--out", str(work), "--seed", str(seed)]
+        cmd += ["--profile", run["profile"], "--preset", run["preset"], "--force"]
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=os.environ.copy())
+        summary = json.loads((work / "simulate-summary.json").read_text())
+        out = {
+            "rotated_fits": rotated,
+            "seconds": round(time.perf_counter() - t0, 1),
+            "targets": {},
+        }
+        for target, t in summary["targets"].items():
+            e = t["large_experiment"][METHOD]
+            out["targets"][target] = {
+                "views_random": round(e["views_to_confidence"]["random"], 4),
+                "views_planning": round(e["views_to_confidence"]["sampled"], 4),
+                "planning_minus_random": round(
+                    e["views_to_confidence"]["sampled"] - e["views_to_confidence"]["random"], 4
+                ),
+                "ci95": [round(x, 4) for x in _interval(e)],
+            }
+        return out
+
+
+def _interval(e: dict) -> list[float]:
+    ci = e["views_to_confidence_difference_95ci"]
+    return [ci["lo"], ci["hi"]]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("results", type=Path)
+    p.add_argument("--sets", type=int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--key", default=f"draw_sets_{time.strftime('%Y_%m_%d')}", help="the record's key"
+    )
+    args = p.parse_args(argv)
+    import numpy as np
+
+    sets = [run_set(args.results, s, args.sets, args.seed) for s in range(args.sets)]
+    targets = list(sets[0]["targets"])
+    spread = {}
+    for t in targets:
+        rows = [x["targets"][t] for x in sets]
+        spread[t] = {
+            k: {
+                "min": round(min(r[k] for r in rows), 4),
+                "max": round(max(r[k] for r in rows), 4),
+                "sd": round(float(np.std([r[k] for r in rows], ddof=1)), 4),
+            }
+            for k in ("views_random", "planning_minus_random")
+        }
+        spread[t]["mean_interval_half_width"] = round(
+            float(np.mean([(r["ci95"][1] - r["ci95"][0]) / 2 for r in rows])), 4
+        )
+    record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
+    record[args.key] = {
+        "what": "the large experiment (hierarchical+instance, 10,000 trials a target) rerun on one results "
+        "folder with other posterior draws of the same fits (set s: draws rotated by s/sets of a chain); "
+        "trials, responses and keys unchanged",
+        "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets}",
+        "machine": {"cores": os.cpu_count(), "machine": platform.machine()},
+        "sets": sets,
+        "spread": spread,
+    }
+    RECORD.write_text(json.dumps(record, indent=1) + "\n")
+    print(json.dumps(spread, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
