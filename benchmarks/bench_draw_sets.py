@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -95,6 +94,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     import numpy as np
 
+    from scrppl.pipeline import machine_description
+
     sets = [run_set(args.results, s, args.sets, args.seed) for s in range(args.sets)]
     targets = list(sets[0]["targets"])
     spread = {}
@@ -117,7 +118,7 @@ def main(argv=None) -> int:
         "folder with other posterior draws of the same fits (set s: draws rotated by s/sets of a chain); "
         "trials, responses and keys unchanged",
         "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets}",
-        "machine": {"cores": os.cpu_count(), "machine": platform.machine()},
+        "machine": machine_description(),
         "sets": sets,
         "spread": spread,
     }
