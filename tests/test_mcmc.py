@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import numpyro
 import numpyro.distributions as dist
+import pytest
 
 from scrppl.models.mcmc import SamplerConfig, _compile_for, run_nuts
 
@@ -49,9 +50,34 @@ def test_draws_after_a_capped_warmup_have_the_target_moments():
     n_eff = 400  # a conservative effective sample size for the tolerance below
     np.testing.assert_array_less(np.abs(x.mean(0) - mean), 4 * SDS / np.sqrt(n_eff))
     np.testing.assert_allclose(x.std(0), SDS, rtol=0.15)
-    # after the warm-up the trees may be deeper than the cap again (depth 10): the cap is warm-up only
-    assert stats["n_steps"].shape == (2, 1000)
     assert not stats["diverging"].any()
+
+
+def correlated_gaussian(chol):
+    numpyro.sample("x", dist.MultivariateNormal(jnp.zeros(chol.shape[0]), scale_tril=chol))
+
+
+def test_trees_after_the_warmup_take_the_full_depth_again():
+    """A correlation a diagonal metric cannot undo keeps the kept draws' trees long: past the warm-up
+    they grow beyond the warm-up's cap (one chunk holds the end of the warm-up and the first draws)."""
+    rho = 0.999
+    cov = rho * np.ones((4, 4)) + (1 - rho) * np.eye(4)
+    args = (jnp.asarray(np.linalg.cholesky(cov)),)
+    config = SamplerConfig(
+        num_warmup=100, num_samples=100, num_chains=2, chunk=200, warmup_tree_depth=3
+    )
+    compiled, n_dev, per_device = _compile_for(correlated_gaussian, args, config, 2)
+    keys = jax.random.split(jax.random.key(5), 2).reshape(n_dev, per_device)
+    _, (_, stats) = compiled.step(compiled.init(keys, args), args)
+    steps = np.asarray(stats["n_steps"]).reshape(2, -1)
+    assert steps[:, :100].max() <= 2**3 - 1
+    assert steps[:, 100:].max() > 2**3 - 1
+
+
+def test_a_warmup_depth_below_one_is_refused():
+    config = SamplerConfig(num_warmup=10, num_samples=10, num_chains=1, warmup_tree_depth=0)
+    with pytest.raises(ValueError, match="warmup_tree_depth"):
+        run_nuts(jax.random.key(0), scaled_gaussian, (jnp.zeros(2), jnp.ones(2)), config, False)
 
 
 def test_default_sampler_caps_the_warmup_at_depth_seven():

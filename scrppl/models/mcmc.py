@@ -198,6 +198,11 @@ def _drive(compiled, keys, args, config: SamplerConfig, n_chains: int, progress:
 
 
 def _compile_for(model, args, config: SamplerConfig, n_chains: int):
+    if config.warmup_tree_depth is not None and int(config.warmup_tree_depth) < 1:
+        raise ValueError(
+            f"warmup_tree_depth must be at least 1 (or None for max_tree_depth), got "
+            f"{config.warmup_tree_depth}"
+        )
     n_dev, per_device = _device_split(n_chains)
     compiled = _compiled(
         model,
