@@ -1,16 +1,18 @@
 """How much the experiment's numbers depend on which posterior draws the filter reads (issue 23).
 
-`scrppl simulate`'s large experiment reads each hierarchical fit through ``large_max_draws`` posterior draws
-(8 in the full profile), evenly spaced over the pooled chains, and the report's paired interval of planning
-minus random counts the trials only. This script reruns the experiment on one results folder with other
-draws of the *same* fits: for set ``s`` every hierarchical posterior's draws are rotated within each chain
-by ``s`` times (draws per chain / sets), so the evenly spaced draws the filter keeps are other draws of the
-same posterior; the trials, responses and keys stay as they are. It records, per target, the views a random
-view needs, planning minus random and its interval, for each set, in
-``benchmarks/results/draw-sets.json``::
+`scrppl simulate`'s large experiment reads each hierarchical fit through ``large_max_draws`` posterior
+draws (8 in the full profile). It used to read the same 8 evenly spaced draws in every trial, and the
+report's paired interval of planning minus random counted the trials only; each trial now reads its own 8,
+drawn from all of the fit's draws by its key (``scrppl.sim.runner.trial_draws``). This script reruns the
+experiment on one results folder with other draws of the *same* fits -- the trials, responses and keys
+stay as they are -- and records, per target, the views a random view needs, planning minus random and
+its interval, for each set, in ``benchmarks/results/draw-sets.json``::
 
-    python benchmarks/bench_draw_sets.py RESULTS --sets 4
+    python benchmarks/bench_draw_sets.py RESULTS --sets 4 --split chain
 
+``--split rotate`` (set ``s``: every posterior's draws rotated within each chain by ``s`` times (draws
+per chain / sets): other evenly spaced draws of one pool) or ``--split chain`` (set ``s``: only chain ``s``
+of each fit: disjoint pools of draws of the same posterior, as another run of the sampler would give).
 ``RESULTS`` is a full-profile results folder after ``scrppl simulate`` (``responses.nc``, ``models/``,
 ``run.json``); it is not changed (each set runs in a scratch folder beside the record).
 """
@@ -46,14 +48,35 @@ def rotate_draws(models: Path, shift_fraction: float) -> int:
     return n
 
 
-def run_set(results: Path, s: int, sets: int, seed: int) -> dict:
-    """Run the experiment with draw set ``s`` in a scratch copy of ``results``; per-target numbers."""
+def keep_chain(models: Path, chain: int) -> int:
+    """Keep only chain ``chain`` of every hierarchical posterior in ``models`` (disjoint draws of one fit)."""
+    from scrppl.models.io import load_posterior, save_posterior
+
+    n = 0
+    for path in sorted(models.glob("hierarchical-*.nc")):
+        tree = load_posterior(path)
+        post = tree["posterior"].to_dataset()
+        tree["posterior"] = post.isel(chain=[chain % post.sizes["chain"]])
+        save_posterior(path, tree)
+        n += 1
+    return n
+
+
+def run_set(results: Path, s: int, sets: int, seed: int, split: str = "rotate") -> dict:
+    """Run the experiment with draw set ``s`` in a scratch copy of ``results``; per-target numbers.
+
+    ``split="rotate"``: the draws rotated by ``s / sets`` of a chain (other evenly spaced draws, the
+    same pool); ``"chain"``: only chain ``s`` of each fit (disjoint pools of draws of the same posterior).
+    """
     with tempfile.TemporaryDirectory(dir=RECORD.parent) as tmp:
         work = Path(tmp)
         for name in ("responses.nc", "run.json"):
             shutil.copy2(results / name, work / name)
         shutil.copytree(results / "models", work / "models")
-        rotated = rotate_draws(work / "models", s / sets) if s else 0
+        if split == "chain":
+            rotated = keep_chain(work / "models", s)
+        else:
+            rotated = rotate_draws(work / "models", s / sets) if s else 0
         run = json.loads((results / "run.json").read_text())
         t0 = time.perf_counter()
         cmd = [sys.executable, "-m", "scrppl", "simulate", "--out", str(work), "--seed", str(seed)]
@@ -89,6 +112,10 @@ def main(argv=None) -> int:
     p.add_argument("--sets", type=int, default=4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
+        "--split", choices=("rotate", "chain"), default="rotate",
+        help="rotate: other evenly spaced draws of each fit; chain: set s keeps only chain s",
+    )  # fmt: skip
+    p.add_argument(
         "--key", default=f"draw_sets_{time.strftime('%Y_%m_%d')}", help="the record's key"
     )
     args = p.parse_args(argv)
@@ -96,7 +123,7 @@ def main(argv=None) -> int:
 
     from scrppl.pipeline import machine_description
 
-    sets = [run_set(args.results, s, args.sets, args.seed) for s in range(args.sets)]
+    sets = [run_set(args.results, s, args.sets, args.seed, args.split) for s in range(args.sets)]
     targets = list(sets[0]["targets"])
     spread = {}
     for t in targets:
@@ -115,9 +142,14 @@ def main(argv=None) -> int:
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
     record[args.key] = {
         "what": "the large experiment (hierarchical+instance, 10,000 trials a target) rerun on one results "
-        "folder with other posterior draws of the same fits (set s: draws rotated by s/sets of a chain); "
-        "trials, responses and keys unchanged",
-        "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets}",
+        "folder with other posterior draws of the same fits ("
+        + (
+            "set s: draws rotated by s/sets of a chain"
+            if args.split == "rotate"
+            else "set s: only chain s of each fit, disjoint draws"
+        )
+        + "); trials, responses and keys unchanged",
+        "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets} --split {args.split}",
         "machine": machine_description(),
         "sets": sets,
         "spread": spread,

@@ -211,6 +211,69 @@ def test_runner_records_are_consistent(table, model, key, planner):
         np.testing.assert_array_equal(np.asarray(one.views), views)
 
 
+def test_trial_draws_are_distinct_keyed_and_leave_small_models_alone(model, key):
+    from scrppl.sim.runner import trial_draws
+
+    n = 40
+    many = ResponseModel(
+        model.mu + jnp.arange(n, dtype=jnp.float32)[:, None, None, None, None],
+        jnp.repeat(model.sigma, n, axis=0),
+        jnp.arange(n, dtype=jnp.float32)[:, None] * jnp.ones((1, 2)),
+    )
+    picks = []
+    for i in range(20):
+        sub = trial_draws(jax.random.fold_in(key, i), many, 5)
+        idx = np.asarray(sub.tau[:, 0]).astype(int)  # tau[n] = n: which draws were kept
+        assert sub.mu.shape == (5, 2, A, E, S) and len(set(idx.tolist())) == 5
+        assert ((0 <= idx) & (idx < n)).all()
+        # every field takes the same draws
+        np.testing.assert_array_equal(np.asarray(sub.mu[:, 0, 0, 0, 0]), idx.astype(np.float32))
+        again = trial_draws(jax.random.fold_in(key, i), many, 5)
+        np.testing.assert_array_equal(np.asarray(again.tau), np.asarray(sub.tau))
+        picks.append(frozenset(idx.tolist()))
+    assert len(set(picks)) == 20  # other trials, other draws
+    # over many trials every draw is read about equally often
+    counts = np.zeros(n)
+    for i in range(400):
+        counts[
+            np.asarray(trial_draws(jax.random.fold_in(key, i), many, 5).tau[:, 0]).astype(int)
+        ] += 1
+    assert stats.chisquare(counts).pvalue > 1e-3
+    for k in (None, n, n + 3):
+        assert trial_draws(key, many, k) is many
+
+
+def test_each_trial_filters_with_its_own_draws(table, model, key):
+    from scrppl.sim.runner import trial_draws
+
+    # five draws far apart: a trial's beliefs tell which single draw its filter read
+    shifts = jnp.asarray([0.0, 1.5, -1.0, 2.5, 0.7], jnp.float32)
+    many = ResponseModel(
+        model.mu
+        + shifts[:, None, None, None, None] * jnp.asarray([0.0, 1.0])[None, :, None, None, None],
+        jnp.repeat(model.sigma, 5, axis=0),
+        jnp.zeros((5, 2)),
+    )
+    trials = sim.make_trials(key, table, "dpm", "car", 8)
+    rec = sim.run_trials(key, many, trials, PC("sampled", n_samples=64), chunk_size=CHUNK,
+                         draws_per_trial=1)  # fmt: skip
+    rand = sim.run_trials(key, many, trials, PC("random"), chunk_size=CHUNK, draws_per_trial=1)
+    used = set()
+    for t in range(8):
+        own = trial_draws(jax.random.fold_in(key, t), many, 1)
+        used.add(float(own.mu[0, 1, 0, 0, 0] - model.mu[0, 1, 0, 0, 0]))
+        for r in (rec, rand):  # both planners of a trial read the same draw
+            views = np.asarray(r.views[t])
+            f = [sim.observe(trials, t, v) for v in views]
+            ref = brute_force_log_belief(own, views, f)
+            got = np.asarray(r.log_belief[t, -1])
+            keep = ref > -30
+            np.testing.assert_allclose(got[keep], ref[keep], atol=2e-3)
+    assert len(used) >= 2
+    with pytest.raises(ValueError, match="draws_per_trial must be at least 1"):
+        sim.run_trials(key, many, trials, PC("random"), draws_per_trial=0)
+
+
 def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key):
     trials = sim.make_trials(key, table, "dpm", "car", 24, positive_fraction=0.0)
     n_steps = A * E * S
@@ -479,10 +542,11 @@ def test_simulate_command_end_to_end(table, model, tmp_path, monkeypatch):
     argv += ["--large-trials", "16", "--n-samples", "64", "--quiet"]
     argv += ["--max-draws", "6", "--large-max-draws", "3"]
     assert main(argv) == 0
-    # the paper's experiment keeps --max-draws posterior draws, the large one --large-max-draws
+    # the paper's experiment keeps --max-draws posterior draws; the large one loads them all (each
+    # of its trials reads --large-max-draws of them)
     assert [c for c in calls if c[0] == "gaussian"] == [
         ("gaussian", "dpm", "car", 6),
-        ("gaussian", "dpm", "car", 3),
+        ("gaussian", "dpm", "car", None),
     ]
     summary = json.loads((tmp_path / "simulate-summary.json").read_text())
     headline = summary["targets"]["car"]["paper_experiment"]["gaussian+naive_bayes"]
@@ -531,7 +595,7 @@ def test_simulate_gives_the_large_experiment_its_own_posterior_draws(
     def fake_run_trials(
         key, model, trials, config=None, *, filter="naive_bayes", n_steps=None, **kw
     ):
-        runs.append((trials.n_trials, filter, model.mu.shape[0]))
+        runs.append((trials.n_trials, filter, model.mu.shape[0], kw.get("draws_per_trial")))
         n, k = trials.n_trials, A if n_steps is None else n_steps
         views = jnp.broadcast_to(jnp.asarray(trials.start)[:, None], (n, k, 3))
         return sim.TrialRecord(
@@ -545,7 +609,8 @@ def test_simulate_gives_the_large_experiment_its_own_posterior_draws(
     argv += ["--large-trials", "16", "--kinds", "hierarchical", "--quiet"]
     argv += ["--max-draws", "6", "--large-max-draws", "3"]
     assert main(argv) == 0
-    paper = {(f, d) for t, f, d in runs if t == 12}
-    large = {(f, d) for t, f, d in runs if t == 16}
-    assert paper == {("naive_bayes", 6), ("instance", 6)}
-    assert large == {("naive_bayes", 3), ("instance", 3)}
+    paper = {(f, d, k) for t, f, d, k in runs if t == 12}
+    large = {(f, d, k) for t, f, d, k in runs if t == 16}
+    assert paper == {("naive_bayes", 6, None), ("instance", 6, None)}
+    # the large experiment gets every draw, and each of its trials reads its own 3
+    assert large == {("naive_bayes", 10, 3), ("instance", 10, 3)}

@@ -93,7 +93,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--large-max-draws",
         type=int,
         default=None,
-        help="posterior draws kept in the large experiment (full: 8, quick: 4)",
+        help="posterior draws each trial of the large experiment reads, its own drawn from all of a "
+        "fit's draws (full: 8, quick: 4)",
     )
     p.add_argument(
         "--force", action="store_true", help="accepted for symmetry; outputs are rewritten"

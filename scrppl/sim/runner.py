@@ -28,7 +28,7 @@ from scrppl.planning import DEFAULT_PLANNER, PlannerConfig, check_planner_config
 from scrppl.sim.simulator import Trials, check_starts, robot_frame
 from scrppl.views import check_mask_shape
 
-__all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked"]
+__all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked", "trial_draws", "DRAW_STREAM"]
 
 #: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
 #: that can still be unvisited at its first step (more phases: less work, about twice the compilation
@@ -36,6 +36,9 @@ __all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked"]
 #: planner, which scores no candidates) a single phase.
 _PHASES = 3
 _MANY_TRIALS = 2048
+#: The stream of a trial's own posterior draws (``draws_per_trial``): ``fold_in(trial key, DRAW_STREAM)``
+#: (far from the step indices ``t`` that the planner's keys fold in).
+DRAW_STREAM = 0xD4A5
 
 
 class TrialRecord(NamedTuple):
@@ -162,9 +165,34 @@ def _phases(n_steps: int, n_phases: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
-def _trial(key, model, motion_cost, responses, available, pose, start, *, config, **options):
+def trial_draws(key: jax.Array, model: ResponseModel, draws_per_trial: int | None) -> ResponseModel:
+    """The posterior draws one trial's filter and planner read: ``draws_per_trial`` of the model's.
+
+    Drawn without replacement by the trial's key (``fold_in(key, DRAW_STREAM)``: the ``draws_per_trial``
+    largest of ``N`` uniforms), so every planner and filter of a trial reads the same draws, and another
+    trial other draws. ``None``, or at least ``N``, keeps the model as it is. Traceable.
+
+    Why: an experiment that reads a fit through a few fixed draws measures those draws as much as the
+    posterior -- another set of equally good draws of the same fit moves its mean by more than the trials'
+    interval. With each trial's own draws from the whole posterior, the mean is an average over draw sets,
+    and the paired bootstrap over trials covers which draws were read.
+    """
+    n = model.mu.shape[0]
+    if draws_per_trial is None or int(draws_per_trial) >= n:
+        return model
+    k = int(draws_per_trial)
+    if k < 1:
+        raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
+    u = jax.random.uniform(jax.random.fold_in(key, DRAW_STREAM), (n,))
+    idx = jax.lax.top_k(u, k)[1]
+    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), model)
+
+
+def _trial(key, model, motion_cost, responses, available, pose, start, *, config,
+           draws_per_trial=None, **options):  # fmt: skip
     """:func:`run_trial` with the motion cost as a (traced) value beside the compiled ``config``."""
     config = config._replace(motion_cost=motion_cost)
+    model = trial_draws(key, model, draws_per_trial)
     return run_trial(key, model, responses, available, pose, start, config=config, **options)
 
 
@@ -312,6 +340,7 @@ def run_trials(
     batch_size: int = 1,
     devices: int | None = None,
     progress: bool = False,
+    draws_per_trial: int | None = None,
 ) -> TrialRecord:
     """Run every trial with one filter and one planner configuration.
 
@@ -341,6 +370,9 @@ def run_trials(
         CPU devices to split each chunk over (default: all local devices; results do not depend on it).
     progress
         Show a progress bar over chunks.
+    draws_per_trial
+        Each trial reads its own ``draws_per_trial`` posterior draws of ``model``, drawn by its key
+        (:func:`trial_draws`); ``None`` (default): every trial reads all of them.
 
     Returns
     -------
@@ -348,6 +380,8 @@ def run_trials(
         Arrays with leading axes ``(T, K)``.
     """
     config = check_planner_config(config)
+    if draws_per_trial is not None and int(draws_per_trial) < 1:
+        raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     n = trials.n_trials
     static = (
@@ -357,6 +391,8 @@ def run_trials(
         # the random planner scores no candidates: phases would only multiply its compilation time
         ("phases", _PHASES if n >= _MANY_TRIALS and config.planner != "random" else 1),
     )
+    if draws_per_trial is not None and int(draws_per_trial) < model.mu.shape[0]:
+        static += (("draws_per_trial", int(draws_per_trial)),)
     out = run_chunked(
         _trial,
         static,

@@ -370,7 +370,8 @@ def run_study(
         The entropy planner (:class:`~scrppl.planning.PlannerConfig`: planner, objective, samples ``M``
         per decision, motion cost, ...), compared with a random unseen view (:func:`study_planners`).
     max_draws, large_max_draws
-        Posterior draws kept in the paper's and in the large experiment.
+        Posterior draws kept in the paper's experiment (evenly spaced), and read by each trial of the
+        large one (its own, drawn from all of a fit's draws by the trial's key).
     kinds
         Model kinds to load.
     progress, log
@@ -496,15 +497,20 @@ def _large_experiment(
 ) -> xr.Dataset:  # fmt: skip
     """Target number ``i``'s large experiment with the methods of ``kinds``, in process or in a task.
 
+    Each trial reads its own ``max_draws`` posterior draws of every fit, drawn from all of them by the
+    trial's key (:func:`scrppl.sim.runner.trial_draws`), so the experiment's mean does not hang on one
+    set of draws and its bootstrap interval covers which draws were read.
+
     Raises ``FileNotFoundError`` when no kind has a saved model (:func:`load_methods`).
     """
     _, k_run, k_large, _ = _target_keys(seed, i)
+    # every posterior draw is loaded; each trial reads its own max_draws of them (trial_draws)
     methods, _ = load_methods(
-        k_large, models_dir, table, detector, target, n_trials, kinds=kinds, max_draws=max_draws
+        k_large, models_dir, table, detector, target, n_trials, kinds=kinds, max_draws=None
     )
     return run_experiment(
         k_run, methods, planners, category_names=table["category"].values.tolist(),
-        progress=progress, chunk_size=2048,
+        progress=progress, chunk_size=2048, draws_per_trial=max_draws,
     )  # fmt: skip
 
 
