@@ -36,7 +36,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl import belief as B
-from scrppl.confident import sample_future, step_cost
+from scrppl.confident import sample_future, step_cost, subset_beliefs
 from scrppl.sim.bounds import _trial_views
 from scrppl.sim.metrics import CONFIDENCE
 
@@ -57,25 +57,15 @@ def feats(logj, amask):
     s = jnp.sum(jnp.where(al, p[..., None, :], 0.0), -1)  # (..., M)
     pj = jnp.exp(logj)
     hj = -jnp.sum(jnp.where(pj > 0, pj * logj, 0.0), (-2, -1))  # joint entropy (...)
-    phi = jnp.stack(
-        [s, s * s, s * hj[..., None], jnp.broadcast_to(hj[..., None], s.shape) * 0 + (s > 0)], -1
-    )
+    phi = jnp.stack([s, s * s, s * hj[..., None], (s > 0).astype(s.dtype)], -1)
     a_idx = jnp.sum(al * (1 << jnp.arange(n_o)), -1)
     return s, phi, a_idx
 
 
 def stack_of(model, belief, valid, views, o_f, n_rem):
-    o, f = o_f
-    order = jnp.argsort(~valid, stable=True)[:n_rem]
-    ok = valid[order]
-    stack = jax.tree_util.tree_map(lambda x: x[None], belief)
-    for k in range(n_rem):
-        v = views[order[k]]
-        fk = f[order[k]]
-        new = jax.vmap(lambda b, v=v, fk=fk: B.update(model, b, fk, v[0], v[1], v[2]))(stack)
-        new = jax.tree_util.tree_map(lambda a, b, k=k: jnp.where(ok[k], a, b), new, stack)
-        stack = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), stack, new)
-    return stack, order, ok
+    """:func:`scrppl.confident.subset_beliefs` of one future ``(o, f)``, with the candidates' order."""
+    stack, ok = subset_beliefs(model, belief, valid, views, o_f[1], n_rem)
+    return stack, jnp.argsort(~valid, stable=True)[:n_rem], ok
 
 
 def random_paths(model, belief, alive0, valid, views, steps_left, keys4, perm_key, n_rem):

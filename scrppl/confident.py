@@ -53,7 +53,8 @@ Contents
 * :func:`expected_remaining_views` -- the bracket ``[lower, upper]`` of every candidate first view.
 * :func:`optimal_remaining_views` -- the bracket of the best adaptive policy from a belief.
 * :func:`sample_future`, :func:`future_costs` -- the futures leaf: one future of the filter's model, and
-  its remaining views in hindsight and in a fixed order.
+  its remaining views in hindsight and in a fixed order (from :func:`subset_beliefs`, the belief after
+  every set of the remaining views).
 * :func:`confident_scores` -- the planner's scores: depth 2 with the upper leaf value, the second level
   moment-matched over the draws (:func:`collapse_draws`) and sampled :data:`LEAF_SAMPLES` times per
   first-level response; what ``PlannerConfig(planner="confident")`` minimises in
@@ -102,6 +103,7 @@ __all__ = [
     "step_cost",
     "sample_future",
     "future_costs",
+    "subset_beliefs",
     "expected_remaining_views",
     "optimal_remaining_views",
     "collapse_draws",
@@ -304,6 +306,31 @@ def sample_future(model: ResponseModel, belief, views, u_state, u_draw, z, eps):
     return o, mu[:, n, o, theta] + u + jnp.sqrt(sigma2[:, n, o, theta]) * eps
 
 
+def subset_beliefs(model: ResponseModel, belief, valid, views, f, n_rem: int):
+    """The belief after every set of the first ``n_rem`` valid candidates, one future's responses known.
+
+    Candidates are ordered valid first, in index order; entry ``i`` of the stacked belief (leading axis
+    ``2^n_rem``) has seen candidate ``k`` of that order exactly when bit ``k`` of ``i`` is set (an exact
+    filter's belief does not depend on the order of the views). Each set's belief is its set without its
+    highest bit, updated once. Bits of invalid candidates leave the belief as it was.
+
+    Returns
+    -------
+    stack, ok
+        The stacked belief and ``ok (n_rem,)``: whether candidate ``k`` of the order is valid.
+    """
+    order = jnp.argsort(~valid, stable=True)[:n_rem]  # valid candidates first, in index order
+    ok = valid[order]
+    stack = jax.tree_util.tree_map(lambda x: x[None], belief)
+    for k in range(n_rem):
+        v = views[order[k]]
+        fk = f[order[k]]
+        new = jax.vmap(lambda b, v=v, fk=fk: B.update(model, b, fk, v[0], v[1], v[2]))(stack)
+        new = jax.tree_util.tree_map(lambda a, b, k=k: jnp.where(ok[k], a, b), new, stack)
+        stack = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), stack, new)
+    return stack, ok
+
+
 def future_costs(model: ResponseModel, belief, alive, valid, views, steps_left, o, f, threshold,
                  n_rem: int):  # fmt: skip
     """Remaining step costs of one known future: ``[fewest views in hindsight, views in a fixed order]``.
@@ -321,15 +348,7 @@ def future_costs(model: ResponseModel, belief, alive, valid, views, steps_left, 
     if n_rem == 0:  # no view after the tree: the future is counted out, or never confident
         rest = jnp.where(alive[o], jnp.asarray(steps_left, model.mu.dtype), 0.0)
         return jnp.stack([rest, rest])
-    order = jnp.argsort(~valid, stable=True)[:n_rem]  # valid candidates first, in index order
-    ok = valid[order]
-    stack = jax.tree_util.tree_map(lambda x: x[None], belief)
-    for k in range(n_rem):
-        v = views[order[k]]
-        fk = f[order[k]]
-        new = jax.vmap(lambda b, v=v, fk=fk: B.update(model, b, fk, v[0], v[1], v[2]))(stack)
-        new = jax.tree_util.tree_map(lambda a, b, k=k: jnp.where(ok[k], a, b), new, stack)
-        stack = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), stack, new)
+    stack, ok = subset_beliefs(model, belief, valid, views, f, n_rem)
     p_true = jax.vmap(B.class_marginal)(stack)[:, o]  # (2^n_rem,): bit k of the index = candidate k
     bits = (np.arange(2**n_rem)[:, None] >> np.arange(n_rem)) & 1
     size = jnp.asarray(bits.sum(axis=1))

@@ -265,6 +265,30 @@ def test_future_costs_equal_enumeration_of_view_sets(kind):
 
 
 @pytest.mark.parametrize("kind", B.FILTERS)
+def test_subset_beliefs_are_the_filter_run_over_each_set(kind):
+    """Entry i of the stack is the filter run over the valid candidates of the bits of i, in any order."""
+    model, start, _, b, _ = tiny(kind)
+    views, valid = views_valid(start)
+    ok_in = np.asarray(valid).copy()
+    ok_in[(start + 2) % A] = False  # one candidate cannot be looked at
+    rng = np.random.default_rng(3)
+    f = jnp.asarray(rng.normal(0.5, 1.0, size=A), jnp.float32)
+    n_rem = A - 1
+    stack, ok = C.subset_beliefs(model, b, jnp.asarray(ok_in), views, f, n_rem)
+    order = [v for v in range(A) if ok_in[v]] + [v for v in range(A) if not ok_in[v]]
+    np.testing.assert_array_equal(np.asarray(ok), ok_in[order[:n_rem]])
+    for i in range(2**n_rem):
+        seen = [order[k] for k in range(n_rem) if i >> k & 1 and ok_in[order[k]]]
+        want = b
+        for v in reversed(seen):  # another order than the stack's: the filter is exact
+            want = B.update(model, want, f[v], v, 0, 0)
+        got = jax.tree.map(lambda x, i=i: x[i], stack)
+        np.testing.assert_allclose(
+            np.asarray(B.joint_log_belief(got)), np.asarray(B.joint_log_belief(want)), atol=2e-4
+        )
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
 def test_sample_future_follows_the_filters_model(kind, key):
     """Class frequencies are the belief's, and each view's response has the mean and variance of the
     filter's predictive (a mixture over draws and states, scrppl.belief.predictive_mixture)."""
