@@ -13,7 +13,9 @@ its interval, for each set, in ``benchmarks/results/draw-sets.json``::
 ``--split rotate`` (set ``s``: every posterior's draws rotated within each chain by ``s`` times (draws
 per chain / sets): other evenly spaced draws of one pool) or ``--split chain`` (set ``s``: only chain ``s``
 of each fit: disjoint pools of draws of the same posterior, as another run of the sampler would give).
-``RESULTS`` is a full-profile results folder after ``scrppl simulate`` (``responses.nc``, ``models/``,
+``--stage kway`` does the same for the K-way stage's large experiment (which still reads the same
+``large_max_draws`` draws in every trial), per step. ``RESULTS`` is a full-profile results folder after
+``scrppl simulate`` (``responses.nc``, ``models/``,
 ``run.json``); it is not changed (each set runs in a scratch folder beside the record).
 """
 
@@ -62,11 +64,15 @@ def keep_chain(models: Path, chain: int) -> int:
     return n
 
 
-def run_set(results: Path, s: int, sets: int, seed: int, split: str = "rotate") -> dict:
-    """Run the experiment with draw set ``s`` in a scratch copy of ``results``; per-target numbers.
+def run_set(
+    results: Path, s: int, sets: int, seed: int, split: str = "rotate", stage: str = "simulate"
+) -> dict:
+    """Run the experiment with draw set ``s`` in a scratch copy of ``results``; its numbers.
 
     ``split="rotate"``: the draws rotated by ``s / sets`` of a chain (other evenly spaced draws, the
     same pool); ``"chain"``: only chain ``s`` of each fit (disjoint pools of draws of the same posterior).
+    ``stage="simulate"``: the binary experiment, per target; ``"kway"``: the K-way stage's large
+    experiment, per step.
     """
     with tempfile.TemporaryDirectory(dir=RECORD.parent) as tmp:
         work = Path(tmp)
@@ -79,15 +85,15 @@ def run_set(results: Path, s: int, sets: int, seed: int, split: str = "rotate") 
             rotated = rotate_draws(work / "models", s / sets) if s else 0
         run = json.loads((results / "run.json").read_text())
         t0 = time.perf_counter()
-        cmd = [sys.executable, "-m", "scrppl", "simulate", "--out", str(work), "--seed", str(seed)]
+        cmd = [sys.executable, "-m", "scrppl", stage, "--out", str(work), "--seed", str(seed)]
         cmd += ["--profile", run["profile"], "--preset", run["preset"], "--force"]
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=os.environ.copy())
+        out = {"rotated_fits": rotated, "seconds": round(time.perf_counter() - t0, 1)}
+        if stage == "kway":
+            out["steps"] = _kway_numbers(json.loads((work / "kway-summary.json").read_text()))
+            return out
         summary = json.loads((work / "simulate-summary.json").read_text())
-        out = {
-            "rotated_fits": rotated,
-            "seconds": round(time.perf_counter() - t0, 1),
-            "targets": {},
-        }
+        out["targets"] = {}
         for target, t in summary["targets"].items():
             e = t["large_experiment"][METHOD]
             out["targets"][target] = {
@@ -99,6 +105,21 @@ def run_set(results: Path, s: int, sets: int, seed: int, split: str = "rotate") 
                 "ci95": [round(x, 4) for x in _interval(e)],
             }
         return out
+
+
+def _kway_numbers(summary: dict) -> dict:
+    """Per step of the K-way large experiment: random K-way minus one-vs-rest accuracy, planning's accuracy."""
+    large = summary["large"]
+    diff = large["random_minus_one_vs_rest"]["accuracy"]
+    plan = large["methods"]["planning"]["accuracy"]
+    out = {}
+    for i, step in enumerate(large["steps"]):
+        out[str(step)] = {
+            "random_minus_one_vs_rest": round(diff["mean"][step - 1], 4),
+            "ci95": [round(diff["lo"][step - 1], 4), round(diff["hi"][step - 1], 4)],
+            "planning_accuracy": round(plan["mean"][i], 4),
+        }
+    return out
 
 
 def _interval(e: dict) -> list[float]:
@@ -116,6 +137,10 @@ def main(argv=None) -> int:
         help="rotate: other evenly spaced draws of each fit; chain: set s keeps only chain s",
     )  # fmt: skip
     p.add_argument(
+        "--stage", choices=("simulate", "kway"), default="simulate",
+        help="simulate: the binary experiment per target; kway: the K-way experiment per step",
+    )  # fmt: skip
+    p.add_argument(
         "--key", default=f"draw_sets_{time.strftime('%Y_%m_%d')}", help="the record's key"
     )
     args = p.parse_args(argv)
@@ -123,33 +148,44 @@ def main(argv=None) -> int:
 
     from scrppl.pipeline import machine_description
 
-    sets = [run_set(args.results, s, args.sets, args.seed, args.split) for s in range(args.sets)]
-    targets = list(sets[0]["targets"])
+    sets = [
+        run_set(args.results, s, args.sets, args.seed, args.split, args.stage)
+        for s in range(args.sets)
+    ]
+    part, keys = ("steps", ("random_minus_one_vs_rest", "planning_accuracy"))
+    if args.stage == "simulate":
+        part, keys = ("targets", ("views_random", "planning_minus_random"))
     spread = {}
-    for t in targets:
-        rows = [x["targets"][t] for x in sets]
+    for t in sets[0][part]:
+        rows = [x[part][t] for x in sets]
         spread[t] = {
             k: {
                 "min": round(min(r[k] for r in rows), 4),
                 "max": round(max(r[k] for r in rows), 4),
                 "sd": round(float(np.std([r[k] for r in rows], ddof=1)), 4),
             }
-            for k in ("views_random", "planning_minus_random")
+            for k in keys
         }
         spread[t]["mean_interval_half_width"] = round(
             float(np.mean([(r["ci95"][1] - r["ci95"][0]) / 2 for r in rows])), 4
         )
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
     record[args.key] = {
-        "what": "the large experiment (hierarchical+instance, 10,000 trials a target) rerun on one results "
-        "folder with other posterior draws of the same fits ("
+        "what": (
+            "the large experiment (hierarchical+instance, 10,000 trials a target)"
+            if args.stage == "simulate"
+            else "the K-way stage's large experiment (10,000 trials; random K-way minus one-vs-rest "
+            "accuracy and planning's accuracy after 1, 2, 4 and 8 views)"
+        )
+        + " rerun on one results folder with other posterior draws of the same fits ("
         + (
             "set s: draws rotated by s/sets of a chain"
             if args.split == "rotate"
             else "set s: only chain s of each fit, disjoint draws"
         )
         + "); trials, responses and keys unchanged",
-        "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets} --split {args.split}",
+        "command": f"python benchmarks/bench_draw_sets.py RESULTS --sets {args.sets} --split {args.split}"
+        + (" --stage kway" if args.stage == "kway" else ""),
         "machine": machine_description(),
         "sets": sets,
         "spread": spread,
