@@ -533,6 +533,12 @@ def _section_experiment(out: Path) -> str:
             ],
             ["setting", "value"],
         )
+        if "large_max_draws" in settings:
+            text += (
+                "\n`max_draws` posterior draws of each fit, evenly spaced, serve every trial of the paper "
+                "experiment; each trial of the large one reads its own `large_max_draws`, drawn from all "
+                "of a fit's draws by the trial's key, so its intervals cover which draws were read.\n"
+            )
     extra = []
     if "calibration_ece_pooled_over_targets" in summ:
         pooled = summ["calibration_ece_pooled_over_targets"]

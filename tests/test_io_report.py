@@ -644,3 +644,15 @@ def test_report_shows_the_decomposition_of_a_full_run_and_says_when_it_did_not_r
     assert "decompose" not in [
         s.name for s in stages(argparse.Namespace(**{**vars(args), "profile": "book"}))
     ]
+
+
+def test_report_says_each_large_trial_reads_its_own_draws(tmp_path):
+    out = _fake_run(tmp_path)
+    assert "reads its own `large_max_draws`" not in write_report(out).read_text()
+    path = out / "simulate-summary.json"
+    summary = json.loads(path.read_text())
+    summary["settings"].update(max_draws=32, large_max_draws=8)
+    path.write_text(json.dumps(summary))
+    text = write_report(out).read_text()
+    assert "| large_max_draws | 8 |" in text
+    assert "each trial of the large one reads its own `large_max_draws`" in text
