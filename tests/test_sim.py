@@ -272,6 +272,10 @@ def test_each_trial_filters_with_its_own_draws(table, model, key):
     assert len(used) >= 2
     with pytest.raises(ValueError, match="draws_per_trial must be at least 1"):
         sim.run_trials(key, many, trials, PC("random"), draws_per_trial=0)
+    with pytest.raises(
+        ValueError, match="draws_per_trial must be a whole number of draws, got 2.5"
+    ):
+        sim.run_trials(key, many, trials, PC("random"), draws_per_trial=2.5)
 
 
 def test_runner_never_observes_missing_views_in_all_view_mode(table, model, key):

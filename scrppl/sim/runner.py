@@ -380,8 +380,13 @@ def run_trials(
         Arrays with leading axes ``(T, K)``.
     """
     config = check_planner_config(config)
-    if draws_per_trial is not None and int(draws_per_trial) < 1:
-        raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
+    if draws_per_trial is not None:
+        if isinstance(draws_per_trial, bool) or not float(draws_per_trial).is_integer():
+            raise ValueError(
+                f"draws_per_trial must be a whole number of draws, got {draws_per_trial!r}"
+            )
+        if int(draws_per_trial) < 1:
+            raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     n = trials.n_trials
     static = (
