@@ -13,8 +13,9 @@ its interval, for each set, in ``benchmarks/results/draw-sets.json``::
 ``--split rotate`` (set ``s``: every posterior's draws rotated within each chain by ``s`` times (draws
 per chain / sets): other evenly spaced draws of one pool) or ``--split chain`` (set ``s``: only chain ``s``
 of each fit: disjoint pools of draws of the same posterior, as another run of the sampler would give).
-``--stage kway`` does the same for the K-way stage's large experiment (which still reads the same
-``large_max_draws`` draws in every trial), per step. ``RESULTS`` is a full-profile results folder after
+``--stage kway`` does the same for the K-way stage's large experiment, per step (its trials, too, now
+each read their own ``large_max_draws`` draws, ``scrppl.kway.experiment.kway_trial_draws``; they read
+the same ones in every trial before). ``RESULTS`` is a full-profile results folder after
 ``scrppl simulate`` (``responses.nc``, ``models/``,
 ``run.json``); it is not changed (each set runs in a scratch folder beside the record).
 """

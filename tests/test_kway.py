@@ -740,6 +740,105 @@ def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
         run_kway_experiment(jax.random.key(1), model, trials, log_weight=np.zeros(4))
 
 
+def test_kway_trial_draws_pick_the_same_draws_in_every_model(rng):
+    """One index per trial selects the K-way model's, its correlations', the binary models' and the
+    weights' draws alike; the same key the same draws, other trials other draws."""
+    from scrppl.kway.correlation import CorrelatedKwayModel
+    from scrppl.kway.experiment import kway_trial_draws
+    from scrppl.sim.runner import trial_draw_index
+
+    n, t, k, a = 12, 2, 3, 4
+    mark = jnp.arange(n, dtype=jnp.float32)
+    model, _ = random_kway(rng, t=t, n=n, k=k, a=a)
+    model = KwayModel(
+        model.mu * 0 + mark[None, :, None, None, None, None],
+        model.sigma,
+        model.tau * 0 + mark[None, :, None],
+    )
+    corr = CorrelatedKwayModel(
+        *model,
+        mark[:, None, None] * jnp.ones((1, t, t)),
+        -mark[:, None, None] * jnp.ones((1, t, t)),
+    )
+    binary = ResponseModel(
+        jnp.ones((t, n, 2, a, 1, 1)) * mark[None, :, None, None, None, None],
+        jnp.ones((t, n, 2, a, 1, 1)),
+        jnp.ones((t, n, 2)) * mark[None, :, None],
+    )
+    picks = set()
+    for i in range(10):
+        key = jax.random.fold_in(jax.random.key(3), i)
+        idx = np.asarray(trial_draw_index(key, n, 4))
+        assert len(set(idx.tolist())) == 4 and ((0 <= idx) & (idx < n)).all()
+        m, b, w = kway_trial_draws(key, corr, binary, mark, 4)
+        assert type(m) is CorrelatedKwayModel and m.mu.shape == (t, 4, k, a, 1, 1)
+        for got in (m.mu[1, :, 2, 3, 0, 0], m.tau[0, :, 1], m.view_corr[:, 0, 1],
+                    -m.instance_corr[:, 1, 0], b.mu[1, :, 1, 2, 0, 0], b.tau[0, :, 0], w):  # fmt: skip
+            np.testing.assert_array_equal(np.asarray(got), idx.astype(np.float32))
+        again, _, _ = kway_trial_draws(key, corr, binary, mark, 4)
+        np.testing.assert_array_equal(np.asarray(again.view_corr), np.asarray(m.view_corr))
+        picks.add(frozenset(idx.tolist()))
+    assert len(picks) == 10
+    # no selection: everything as it was
+    for k_ in (None, n, n + 1):
+        got = kway_trial_draws(jax.random.key(0), model, None, None, k_)
+        assert got[0] is model and got[1] is None and got[2] is None
+
+
+def test_kway_experiment_trials_read_their_own_draws(rng):
+    """Each trial with one draw of four far-apart ones: its K-way and one-vs-rest probabilities are those
+    of the experiment run with that one draw, for the draw ``trial_draw_index`` gives its key."""
+    from scrppl.sim.runner import trial_draw_index
+
+    k, n_i, a, n = 3, 4, 4, 4
+    cats = ["x", "y", "z"]
+    from scrppl.responses import empty_response_table
+    from scrppl.views import ViewGrid
+
+    split = np.array([["fit", "fit", "test", "test"]] * k)
+    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
+    table["score"].values[:] = rng.normal(0, 1.0, size=(1, k, k, n_i, a, 1, 1))
+    trials = make_kway_trials(jax.random.key(0), table, "d", 10)
+    base, _ = random_kway(rng, t=k, n=1, k=k, a=a)
+    shift = jnp.asarray([0.0, 2.0, -1.5, 1.0], jnp.float32)[None, :, None, None, None, None]
+    model = KwayModel(base.mu + shift, jnp.repeat(base.sigma, n, 1), jnp.repeat(base.tau, n, 1))
+    bmu = rng.normal(0, 1.0, size=(k, 1, 2, a, 1, 1)) + np.asarray(shift)[:, :, :, :1].repeat(2, 2)
+    binary = ResponseModel(
+        jnp.asarray(bmu, jnp.float32),
+        jnp.full((k, n, 2, a, 1, 1), 0.8, jnp.float32),
+        jnp.full((k, n, 2), 0.3, jnp.float32),
+    )
+    opts = dict(config=PlannerConfig(n_samples=16), n_steps=3, planned=False)
+    key = jax.random.key(1)
+    got = run_kway_experiment(key, model, trials, binary=binary, draws_per_trial=1, **opts)
+    assert got.attrs["draws_per_trial"] == 1
+    own = [int(trial_draw_index(jax.random.fold_in(key, i), n, 1)[0]) for i in range(10)]
+    assert len(set(own)) >= 2
+    for d in sorted(set(own)):
+        one = run_kway_experiment(
+            key,
+            KwayModel(*(x[:, [d]] for x in model)),
+            trials,
+            binary=ResponseModel(*(x[:, [d]] for x in binary)),
+            **opts,
+        )
+        rows = [i for i in range(10) if own[i] == d]
+        np.testing.assert_allclose(
+            got["p_class"].isel(trial=rows), one["p_class"].isel(trial=rows), atol=1e-5
+        )
+    # ... and not those of all four draws (the option is not ignored)
+    every = run_kway_experiment(key, model, trials, binary=binary, **opts)
+    assert every.attrs["draws_per_trial"] == 0
+    assert np.abs(every["p_class"] - got["p_class"]).max() > 1e-2
+    with pytest.raises(ValueError, match="both need the same number of draws, got 1 and 4"):
+        run_kway_experiment(
+            key, model, trials, binary=ResponseModel(*(x[:, :1] for x in binary)),
+            draws_per_trial=2, **opts,
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="draws_per_trial must be a whole number"):
+        run_kway_experiment(key, model, trials, draws_per_trial=1.5, **opts)
+
+
 @pytest.mark.slow  # a K-way NUTS fit (about 60 s): make test-slow (CI)
 def test_fit_kway_recovers_the_category_means_and_round_trips(tmp_path):
     """Short NUTS fits of a table with known means: the K-way reading recovers them; saved fits give
@@ -884,6 +983,20 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     assert "p_class" not in xr.open_dataset(tmp_path / "kway-trials-large.nc")
     report = write_report(tmp_path).read_text()
     assert "## Which object is it? K-way recognition" in report
+    # the large experiment's trials read their own 2 of the fits' draws, the paper-sized one 2 in all
+    from scrppl.models.io import load_posterior, model_path
+
+    post = load_posterior(model_path(tmp_path / "models", "hierarchical", "dpm", cats[0]))[
+        "posterior"
+    ]
+    pool = post.sizes["chain"] * post.sizes["draw"]
+    assert (summary["large"]["draws_per_trial"], summary["large"]["n_draws"]) == (
+        2,
+        pool,
+    ) and pool > 2
+    assert (summary["trials"]["draws_per_trial"], summary["trials"]["n_draws"]) == (0, 2)
+    assert f"(4 trials, each reading its own 2 of {pool} posterior draws per detector)" in report
+    assert "(6 trials, 2 posterior draws per detector in every trial)" in report
     assert "Expected calibration error of the top-label probability after 1, 2, 4 views" in report
     loo = summary["calibration_fit"]["loo"]  # the temperature's trials left each object out
     assert (

@@ -37,7 +37,8 @@ def _experiment(e: dict, label: str, how: str = "") -> str:
     d = e["planning_minus_random"]
     vd = d["views_to_confidence"]
     text = (
-        f"**{label}** ({e['n_trials']} trials): accuracy of the MAP category after each number of views, "
+        f"**{label}** ({e['n_trials']} trials{_draws(e)}): accuracy of the MAP category after each "
+        "number of views, "
         "mean [95% bootstrap interval]\n\n" + "\n".join(lines) + "\n\n"
         f"Planning minus random on the same trials: views to confidence {_ci(vd['mean'], vd['lo'], vd['hi'], 2)}"
     )
@@ -110,6 +111,14 @@ def _planner_name(planner: str | None) -> str:
         "sampled": "sampled (exact mixture update)",
         "equicorrelated": "equicorrelated (collapsed, one correlation shared by every two detectors)",
     }.get(planner or "", planner or "sampled")
+
+
+def _draws(e: dict) -> str:
+    """Which posterior draws an experiment's trials read (older summaries do not say)."""
+    n, k = e.get("n_draws", 0), e.get("draws_per_trial", 0)
+    if k:
+        return f", each reading its own {k} of {n:,} posterior draws per detector"
+    return f", {n} posterior draws per detector in every trial" if n else ""
 
 
 def kway_markdown(summary: dict) -> str:

@@ -148,7 +148,10 @@ def run_kway_study(
     n_samples
         ``M`` per planning decision.
     max_draws, large_max_draws
-        Posterior draws per target kept for filtering and planning in each experiment.
+        Posterior draws per target read by the filters and planners: in the paper-sized experiment the
+        same ``max_draws`` evenly spaced draws in every trial; in the large one each trial its own
+        ``large_max_draws`` of every draw the fits share, chosen by its key
+        (:func:`~scrppl.kway.experiment.kway_trial_draws`), so its intervals cover which draws were read.
     objective
         Entropy the planner minimises (``"class"``: ``H(k)``; ``"joint"``: ``H(k, theta)``).
     planner
@@ -272,15 +275,31 @@ def run_kway_study(
         if n <= 0:
             results.append(None)
             continue
-        sub = fit if draws == max_draws else kway_from_fits(models_dir, detector, categories, draws)
+        per_trial = None
+        if k == 1:
+            # the large experiment: each trial reads its own `draws` of every draw the fits share
+            pool = _shared_draws(corr_fit, models_dir, detector, categories)
+            sub = kway_from_fits(models_dir, detector, categories, pool)
+            per_trial, pool = draws, sub.model.n_draws
+        else:
+            sub = (
+                fit
+                if draws == max_draws
+                else kway_from_fits(models_dir, detector, categories, draws)
+            )
+            pool = draws
         tr = make_kway_trials(
             jax.random.fold_in(key, 2 * k), table, detector, int(n), transform=trans
         )
-        binary = _binary_models(models_dir, detector, categories, draws)
-        log(f"[kway] {detector}: {n} trials, K = {len(categories)}, {draws} draws, M = {n_samples}")
+        binary = _binary_models(models_dir, detector, categories, pool)
+        log(
+            f"[kway] {detector}: {n} trials, K = {len(categories)}, "
+            + (f"{draws} draws" if per_trial is None else f"{draws} of {pool} draws a trial")
+            + f", M = {n_samples}"
+        )
         model = sub.model
         if corr_fit is not None:
-            model = with_correlations(model, *correlations_from_fit(corr_fit, draws))
+            model = with_correlations(model, *correlations_from_fit(corr_fit, pool))
         results.append(
             run_kway_experiment(
                 jax.random.fold_in(key, 2 * k + 1),
@@ -294,6 +313,7 @@ def run_kway_study(
                 keep_probabilities=True,
                 progress=progress,
                 temperature=temperature,
+                draws_per_trial=per_trial,
             )
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
@@ -307,6 +327,25 @@ def run_kway_study(
     ):  # the large experiment's probabilities served its calibration; not saved
         results[1] = results[1].drop_vars("p_class")
     return KwayStudy(fit, results[0], results[1], summary)
+
+
+def _shared_draws(corr_fit, models_dir, detector, categories) -> int:
+    """How many posterior draws every target fit (and the correlation fit, if any) has.
+
+    The large experiment's pool, read evenly spaced from each fit so that draw ``n`` pairs the same way
+    in all of them.
+    """
+    from scrppl.models.io import model_path
+
+    sizes = []
+    for t in categories:  # the sizes only: the fits are read (and checked) by kway_from_fits
+        with xr.open_datatree(model_path(models_dir, "hierarchical", detector, t)) as tree:
+            post = tree["posterior"]
+            sizes.append(post.sizes["chain"] * post.sizes["draw"])
+    if corr_fit is not None:
+        post = corr_fit["posterior"]
+        sizes.append(post.sizes["chain"] * post.sizes["draw"])
+    return int(min(sizes))
 
 
 def _fit_calibration(ds: xr.Dataset, n_trials: int) -> dict:
@@ -416,7 +455,13 @@ def correlation_summary(tree) -> dict:
 def _experiment_summary(ds: xr.Dataset, n_boot: int) -> dict:
     s = summarise_kway(ds, n_boot=n_boot)
     steps = [k for k in REPORT_STEPS if k <= ds.sizes["step"]]
-    out = {"n_trials": int(ds.sizes["trial"]), "steps": steps, "methods": {}}
+    out = {
+        "n_trials": int(ds.sizes["trial"]),
+        "n_draws": int(ds.attrs.get("n_draws", 0)),
+        "draws_per_trial": int(ds.attrs.get("draws_per_trial", 0)),
+        "steps": steps,
+        "methods": {},
+    }
     for m in ds["method"].values.tolist():
         row = {}
         for var in ("accuracy", "p_true", "class_entropy"):

@@ -28,7 +28,16 @@ from scrppl.planning import DEFAULT_PLANNER, PlannerConfig, check_planner_config
 from scrppl.sim.simulator import Trials, check_starts, robot_frame
 from scrppl.views import check_mask_shape
 
-__all__ = ["TrialRecord", "run_trials", "run_trial", "run_chunked", "trial_draws", "DRAW_STREAM"]
+__all__ = [
+    "TrialRecord",
+    "run_trials",
+    "run_trial",
+    "run_chunked",
+    "trial_draws",
+    "trial_draw_index",
+    "check_draws_per_trial",
+    "DRAW_STREAM",
+]
 
 #: Phases of a trial: steps are split into this many scans, each evaluating only the candidate views
 #: that can still be unvisited at its first step (more phases: less work, about twice the compilation
@@ -177,15 +186,40 @@ def trial_draws(key: jax.Array, model: ResponseModel, draws_per_trial: int | Non
     interval. With each trial's own draws from the whole posterior, the mean is an average over draw sets,
     and the paired bootstrap over trials covers which draws were read.
     """
-    n = model.mu.shape[0]
-    if draws_per_trial is None or int(draws_per_trial) >= n:
+    idx = trial_draw_index(key, model.mu.shape[0], draws_per_trial)
+    if idx is None:
         return model
+    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), model)
+
+
+def trial_draw_index(key: jax.Array, n_draws: int, draws_per_trial: int | None) -> jax.Array | None:
+    """Indices of the ``draws_per_trial`` of ``n_draws`` posterior draws the trial of ``key`` reads.
+
+    The ``draws_per_trial`` largest of ``n_draws`` uniforms drawn with ``fold_in(key, DRAW_STREAM)``
+    (without replacement, every draw equally likely); ``None`` when ``draws_per_trial`` is ``None`` or at
+    least ``n_draws`` (every draw is read). Shared by :func:`trial_draws` and the K-way experiment, whose
+    models carry their draw axis elsewhere. Traceable.
+    """
+    if draws_per_trial is None or int(draws_per_trial) >= n_draws:
+        return None
     k = int(draws_per_trial)
     if k < 1:
         raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
-    u = jax.random.uniform(jax.random.fold_in(key, DRAW_STREAM), (n,))
-    idx = jax.lax.top_k(u, k)[1]
-    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), model)
+    u = jax.random.uniform(jax.random.fold_in(key, DRAW_STREAM), (n_draws,))
+    return jax.lax.top_k(u, k)[1]
+
+
+def check_draws_per_trial(draws_per_trial) -> int | None:
+    """``draws_per_trial`` as an ``int`` (or ``None``); a fraction, a bool or a number below 1 refused by name."""
+    if draws_per_trial is None:
+        return None
+    if isinstance(draws_per_trial, bool) or not float(draws_per_trial).is_integer():
+        raise ValueError(
+            f"draws_per_trial must be a whole number of draws, got {draws_per_trial!r}"
+        )
+    if int(draws_per_trial) < 1:
+        raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
+    return int(draws_per_trial)
 
 
 def _trial(key, model, motion_cost, responses, available, pose, start, *, config,
@@ -380,13 +414,7 @@ def run_trials(
         Arrays with leading axes ``(T, K)``.
     """
     config = check_planner_config(config)
-    if draws_per_trial is not None:
-        if isinstance(draws_per_trial, bool) or not float(draws_per_trial).is_integer():
-            raise ValueError(
-                f"draws_per_trial must be a whole number of draws, got {draws_per_trial!r}"
-            )
-        if int(draws_per_trial) < 1:
-            raise ValueError(f"draws_per_trial must be at least 1, got {draws_per_trial}")
+    draws_per_trial = check_draws_per_trial(draws_per_trial)
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     n = trials.n_trials
     static = (
