@@ -688,18 +688,23 @@ def test_experiment_chunks_on_threads_give_the_same_trials(rng, monkeypatch):
     assert len({tuple(row) for row in ds["azimuth"].values[0]}) > 1
 
 
-@pytest.mark.slow  # three experiments compiled (about 40 s): make test-slow (CI)
-def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
-    """Draws (a, b) weighted (3/4, 1/4) are the draws (a, a, a, b): the same filter, so the same numbers."""
-    k, n_i, a = 3, 4, 4
-    cats = ["x", "y", "z"]
+def random_table_trials(rng, n_trials, k=3, n_i=4, a=4):
+    """K-way trials of a table of random responses: ``k`` categories, ``n_i`` instances, ``a`` azimuths."""
     from scrppl.responses import empty_response_table
     from scrppl.views import ViewGrid
 
+    cats = ["x", "y", "z", "w"][:k]
     split = np.array([["fit", "fit", "test", "test"]] * k)
     table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
     table["score"].values[:] = rng.normal(0, 1.0, size=(1, k, k, n_i, a, 1, 1))
-    trials = make_kway_trials(jax.random.key(0), table, "d", 12)
+    return make_kway_trials(jax.random.key(0), table, "d", n_trials)
+
+
+@pytest.mark.slow  # three experiments compiled (about 40 s): make test-slow (CI)
+def test_experiment_with_weighted_draws_equals_repeated_draws(rng):
+    """Draws (a, b) weighted (3/4, 1/4) are the draws (a, a, a, b): the same filter, so the same numbers."""
+    k, a = 3, 4
+    trials = random_table_trials(rng, 12)
     model, _ = random_kway(rng, t=k, n=2, k=k, a=a)
     repeated = KwayModel(*(x[:, [0, 0, 0, 1]] for x in model))
     opts = dict(config=PlannerConfig(n_samples=16), n_steps=3, keep_probabilities=True)
@@ -790,15 +795,8 @@ def test_kway_experiment_trials_read_their_own_draws(rng):
     of the experiment run with that one draw, for the draw ``trial_draw_index`` gives its key."""
     from scrppl.sim.runner import trial_draw_index
 
-    k, n_i, a, n = 3, 4, 4, 4
-    cats = ["x", "y", "z"]
-    from scrppl.responses import empty_response_table
-    from scrppl.views import ViewGrid
-
-    split = np.array([["fit", "fit", "test", "test"]] * k)
-    table = empty_response_table(["d"], cats, cats, n_i, ViewGrid(a, (10.0,), (1.0,)), split)
-    table["score"].values[:] = rng.normal(0, 1.0, size=(1, k, k, n_i, a, 1, 1))
-    trials = make_kway_trials(jax.random.key(0), table, "d", 10)
+    k, a, n = 3, 4, 4
+    trials = random_table_trials(rng, 10)
     base, _ = random_kway(rng, t=k, n=1, k=k, a=a)
     shift = jnp.asarray([0.0, 2.0, -1.5, 1.0], jnp.float32)[None, :, None, None, None, None]
     model = KwayModel(base.mu + shift, jnp.repeat(base.sigma, n, 1), jnp.repeat(base.tau, n, 1))
