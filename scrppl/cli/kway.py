@@ -102,13 +102,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--n-samples", type=int, default=None, help="samples M per planning decision")
     p.add_argument(
-        "--max-draws", type=int, default=None, help="posterior draws kept per target detector"
+        "--max-draws",
+        type=int,
+        default=None,
+        help="posterior draws per target detector each trial reads, its own of every draw the fits "
+        "share (the K-way fit saved and the temperature's trials: this many evenly spaced)",
     )
     p.add_argument(
         "--large-max-draws",
         type=int,
         default=None,
-        help="posterior draws per target in the large experiment",
+        help="posterior draws per target each trial of the large experiment reads",
     )
     p.add_argument(
         "--calibration-trials",

@@ -148,10 +148,11 @@ def run_kway_study(
     n_samples
         ``M`` per planning decision.
     max_draws, large_max_draws
-        Posterior draws per target read by the filters and planners: in the paper-sized experiment the
-        same ``max_draws`` evenly spaced draws in every trial; in the large one each trial its own
-        ``large_max_draws`` of every draw the fits share, chosen by its key
-        (:func:`~scrppl.kway.experiment.kway_trial_draws`), so its intervals cover which draws were read.
+        Posterior draws per target read by the filters and planners in each trial of the paper-sized and
+        the large experiment: each trial its own, chosen by its key from every draw the fits share
+        (:func:`~scrppl.kway.experiment.kway_trial_draws`), so the intervals cover which draws were read
+        (and with equal numbers the two experiments share one compiled runner). ``max_draws`` evenly
+        spaced draws are also the K-way fit this returns and what the temperature's trials read.
     objective
         Entropy the planner minimises (``"class"``: ``H(k)``; ``"joint"``: ``H(k, theta)``).
     planner
@@ -271,35 +272,28 @@ def run_kway_study(
             )
     temperature = 1.0 if calibration_fit is None else calibration_fit["temperature"]
     results = []
+    pooled = None
     for n, draws, k in ((trials, max_draws, 0), (large_trials, large_max_draws, 1)):
         if n <= 0:
             results.append(None)
             continue
-        per_trial = None
-        if k == 1:
-            # the large experiment: each trial reads its own `draws` of every draw the fits share
+        if pooled is None:
+            # each trial of both experiments reads its own `draws` of every draw the fits share; the
+            # two experiments then also share one compiled runner (same pool, same draws a trial)
             pool = _shared_draws(corr_fit, models_dir, detector, categories)
-            sub = kway_from_fits(models_dir, detector, categories, pool)
-            per_trial, pool = draws, sub.model.n_draws
-        else:
-            sub = (
-                fit
-                if draws == max_draws
-                else kway_from_fits(models_dir, detector, categories, draws)
-            )
-            pool = draws
+            model = kway_from_fits(models_dir, detector, categories, pool).model
+            pool = model.n_draws
+            if corr_fit is not None:
+                model = with_correlations(model, *correlations_from_fit(corr_fit, pool))
+            pooled = (model, _binary_models(models_dir, detector, categories, pool))
+        model, binary = pooled
         tr = make_kway_trials(
             jax.random.fold_in(key, 2 * k), table, detector, int(n), transform=trans
         )
-        binary = _binary_models(models_dir, detector, categories, pool)
         log(
             f"[kway] {detector}: {n} trials, K = {len(categories)}, "
-            + (f"{draws} draws" if per_trial is None else f"{draws} of {pool} draws a trial")
-            + f", M = {n_samples}"
+            f"{min(draws, pool)} of {pool} draws a trial, M = {n_samples}"
         )
-        model = sub.model
-        if corr_fit is not None:
-            model = with_correlations(model, *correlations_from_fit(corr_fit, pool))
         results.append(
             run_kway_experiment(
                 jax.random.fold_in(key, 2 * k + 1),
@@ -313,7 +307,7 @@ def run_kway_study(
                 keep_probabilities=True,
                 progress=progress,
                 temperature=temperature,
-                draws_per_trial=per_trial,
+                draws_per_trial=draws,
             )
         )
         results[-1].attrs.update(detector=detector, transform=name, seed=int(seed))
