@@ -21,7 +21,8 @@ detectors of one family, and the robot plans where to look to tell the categorie
   pipeline (it predicts held-out responses better but grows overconfident as views accumulate, see its
   docstring);
 * :mod:`scrppl.kway.experiment` -- held-out trials: entropy planning vs random vs ``K`` one-vs-rest
-  binary filters, accuracy, confusion matrices;
+  binary filters, accuracy, confusion matrices; each trial may read its own posterior draws of all the
+  models (``kway_trial_draws``), as ``scrppl kway`` has it;
 * :mod:`scrppl.kway.calibration` -- temperature scaling of the K-way class probabilities, its temperature
   fitted on random-view trials of the ``fit`` instances, each run with the models' posteriors without that
   object (Pareto-smoothed importance sampling, :mod:`scrppl.models.loo`), so that the temperature is that
