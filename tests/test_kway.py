@@ -784,6 +784,12 @@ def test_kway_trial_draws_pick_the_same_draws_in_every_model(rng):
         np.testing.assert_array_equal(np.asarray(again.view_corr), np.asarray(m.view_corr))
         picks.add(frozenset(idx.tolist()))
     assert len(picks) == 10
+    # a model with an array whose draw axis is not known is refused, not guessed
+    from collections import namedtuple
+
+    Odd = namedtuple("Odd", ["mu", "sigma", "tau", "extra"])
+    with pytest.raises(ValueError, match=r"does not know the draw axis of \['extra'\] \(Odd\)"):
+        kway_trial_draws(jax.random.key(0), Odd(*model, mark), None, None, 4)
     # no selection: everything as it was
     for k_ in (None, n, n + 1):
         got = kway_trial_draws(jax.random.key(0), model, None, None, k_)
@@ -994,7 +1000,9 @@ def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     ) and pool > 2
     assert (summary["trials"]["draws_per_trial"], summary["trials"]["n_draws"]) == (2, pool)
     for n in (4, 6):
-        assert f"({n} trials, each reading its own 2 of {pool} posterior draws per detector)" in report
+        assert (
+            f"({n} trials, each reading its own 2 of {pool} posterior draws per detector)" in report
+        )
     assert "Expected calibration error of the top-label probability after 1, 2, 4 views" in report
     loo = summary["calibration_fit"]["loo"]  # the temperature's trials left each object out
     assert (

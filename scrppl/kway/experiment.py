@@ -317,6 +317,11 @@ def _trial(
     return jax.tree.map(lambda a, b, c: jnp.concatenate([a[None], b, c[None]]), first, rest, last)
 
 
+#: The draw axis of each array of a K-way model (:class:`~scrppl.kway.models.KwayModel`,
+#: :class:`~scrppl.kway.correlation.CorrelatedKwayModel`).
+_DRAW_AXIS = {"mu": 1, "sigma": 1, "tau": 1, "view_corr": 0, "instance_corr": 0}
+
+
 def kway_trial_draws(key, model, binary, log_weight, draws_per_trial: int | None):
     """The posterior draws one K-way trial reads: ``draws_per_trial`` of the ``N`` draws, by its key.
 
@@ -333,11 +338,12 @@ def kway_trial_draws(key, model, binary, log_weight, draws_per_trial: int | None
     if idx is None:
         return model, binary, log_weight
     fields = model._asdict()
-    picked = {
-        name: jnp.take(x, idx, axis=1 if name in ("mu", "sigma", "tau") else 0)
-        for name, x in fields.items()
-    }
-    model = type(model)(**picked)
+    unknown = sorted(set(fields) - set(_DRAW_AXIS))
+    if unknown:  # a new kind of model: its draw axes must be named here, not guessed
+        raise ValueError(
+            f"kway_trial_draws does not know the draw axis of {unknown} ({type(model).__name__})"
+        )
+    model = type(model)(**{n: jnp.take(x, idx, axis=_DRAW_AXIS[n]) for n, x in fields.items()})
     binary = None if binary is None else jax.tree.map(lambda x: jnp.take(x, idx, axis=1), binary)
     log_weight = None if log_weight is None else jnp.take(log_weight, idx, axis=0)
     return model, binary, log_weight

@@ -326,8 +326,8 @@ def run_kway_study(
 def _shared_draws(corr_fit, models_dir, detector, categories) -> int:
     """How many posterior draws every target fit (and the correlation fit, if any) has.
 
-    The large experiment's pool, read evenly spaced from each fit so that draw ``n`` pairs the same way
-    in all of them.
+    The experiments' pool, read evenly spaced from each fit so that draw ``n`` pairs the same way in all
+    of them.
     """
     from scrppl.models.io import model_path
 
