@@ -22,7 +22,9 @@ from scrppl.detectors.dpm import (
 )
 from scrppl.detectors.dpm.latent_svm import (
     TrainingWindow,
+    _features_at,
     _mine_window,
+    best_positive_placement,
     box_iou,
     full_objective,
     initial_parts,
@@ -275,6 +277,61 @@ def test_scores_equal_weights_dot_placement_features():
         np.testing.assert_allclose(a.root, b.root)
         np.testing.assert_allclose(a.deformation, b.deformation)
         assert np.isclose(a.bias, b.bias)
+
+
+def _placement_by_scoring_everything(model, window, overlap):
+    """best_positive_placement's rule applied to every level and component scored in full."""
+    from scrppl.detectors.dpm.model import root_boxes
+
+    best, fallback = (-np.inf, None), (-np.inf, None)
+    for pyr in [window.pyramid] + ([window.mirror] if window.mirror is not None else []):
+        for level, row in enumerate(pyramid_scores(model, pyr)):
+            for c, ls in enumerate(row):
+                if ls is None:
+                    continue
+                iou = box_iou(
+                    root_boxes(pyr, level, ls.score.shape, model.components[c].root.shape[:2]),
+                    window.box,
+                )
+                masked = np.where(iou >= overlap, ls.score, -np.inf)
+                k = int(np.argmax(masked))
+                if masked.flat[k] > best[0]:
+                    best = (masked.flat[k], (pyr, c, level, *np.unravel_index(k, masked.shape)))
+                k = int(np.argmax(iou))
+                if iou.flat[k] > fallback[0]:
+                    fallback = (iou.flat[k], (pyr, c, level, *np.unravel_index(k, iou.shape)))
+    pyr, c, level, y, x = (best if best[1] is not None else fallback)[1]
+    phi = _features_at(model, pyr, c, level, int(y), int(x))
+    return float(phi @ pack(model)[c]), c, phi
+
+
+@pytest.mark.parametrize(
+    "box, overlap",
+    [
+        ((30.0, 25.0, 120.0, 110.0), 0.7),  # a box some placements of each size overlap enough
+        ((10.0, 40.0, 150.0, 150.0), 0.5),
+        ((60.0, 60.0, 64.0, 63.0), 0.7),  # a speck no placement overlaps: the fallback
+    ],
+)
+def test_best_positive_placement_equals_scoring_every_level(box, overlap):
+    """Relabelling a positive scores only the (level, component) pairs whose root can overlap its box
+    enough; the placement, its score and its features are those of scoring every pair."""
+    from scrppl.detectors.dpm.hog import mirror_pyramid
+
+    rng = np.random.default_rng(7)
+    model = _random_model(rng)
+    pyr = build_pyramid(
+        skimage.data.astronaut()[:170, :180],
+        scales=(1.0, 0.85, 0.7, 0.55),
+        canonical_size=80,
+        min_cells=6,
+    )
+    for mirror in (None, mirror_pyramid(pyr)):
+        window = TrainingWindow(pyr, box, None, mirror)
+        got = best_positive_placement(model, window, overlap)
+        want = _placement_by_scoring_everything(model, window, overlap)
+        assert got[0] == want[0] and got[1] == want[1]
+        np.testing.assert_array_equal(got[2], want[2])
 
 
 def test_best_scores_equal_the_best_of_pyramid_scores_for_every_model_and_batch():

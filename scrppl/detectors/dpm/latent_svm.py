@@ -203,17 +203,25 @@ def best_positive_placement(
     fallback = (-np.inf, -1, -1, 0, 0, None)
     pyramids = [window.pyramid] + ([window.mirror] if window.mirror is not None else [])
     for pyr in pyramids:
-        for level, row in enumerate(pyramid_scores(model, pyr)):
-            for c, ls in enumerate(row):
-                if ls is None:
-                    continue
-                comp = model.components[c]
-                iou = box_iou(
-                    root_boxes(pyr, level, ls.score.shape, comp.root.shape[:2]), window.box
-                )
-                ok = iou >= overlap
-                if ok.any():
-                    masked = np.where(ok, ls.score, -np.inf)
+        if model.n_parts > 0 and len(pyr.part) != len(pyr.root):
+            raise ValueError("this model has parts but the pyramid was built without part maps")
+        parts = pyr.part if model.n_parts > 0 else (None,) * len(pyr.root)
+        for level, root in enumerate(pyr.root):
+            # a root position's box depends only on the level's geometry, so the overlap of every
+            # (component, position) is known before scoring: only the components with a position
+            # that overlaps the box enough are scored (about a third of them on the paper images);
+            # the others can only give the fallback, which needs the overlap alone
+            ious: dict[int, np.ndarray] = {}
+            for c, comp in enumerate(model.components):
+                fh, fw = comp.root.shape[:2]
+                shape = (root.shape[0] - fh + 1, root.shape[1] - fw + 1)
+                if shape[0] >= 1 and shape[1] >= 1:  # the root fits the level (else no score)
+                    ious[c] = box_iou(root_boxes(pyr, level, shape, (fh, fw)), window.box)
+            need = tuple(c for c, iou in ious.items() if (iou >= overlap).any())
+            row = level_scores(model, root, parts[level], components=need) if need else None
+            for c, iou in ious.items():
+                if c in need:
+                    masked = np.where(iou >= overlap, row[c].score, -np.inf)
                     k = int(np.argmax(masked))
                     if masked.flat[k] > best[0]:
                         best = (
