@@ -51,8 +51,8 @@ SWEEP_PROFILES = ("quick", "book", "full", "tiny")
 #: hardest level), half of the points needing fewer than 2,100: the blocks run about 42 % of the
 #: trials of 10,000 everywhere, and every point but the noisiest gets the precision aimed for. A fourth
 #: level, the ``robot`` preset (1), rendered and scored 480 more images and fitted nine more models for
-#: points that all saved between -0.05 and +0.06 views (the full run of seed 0), about 130 of the run's
-#: CPU-seconds for no turn in the curve; halving the chains' draws to 4 x (500 + 500) instead made 14 of
+#: points that all saved between -0.05 and +0.06 views (the full run of seed 0), for no turn in the curve:
+#: without it the sweep took 291 CPU-seconds against 406 (``benchmarks/results/reproduce-full.json``); halving the chains' draws to 4 x (500 + 500) instead made 14 of
 #: the 27 fits fail a gate and refit (1 of 27 with 1,000 draws), and moved the points by more than their
 #: intervals.
 PROFILE_SETTINGS = {
