@@ -52,9 +52,9 @@ SWEEP_PROFILES = ("quick", "book", "full", "tiny")
 #: trials of 10,000 everywhere, and every point but the noisiest gets the precision aimed for. A fourth
 #: level, the ``robot`` preset (1), rendered and scored 480 more images and fitted nine more models for
 #: points that all saved between -0.05 and +0.06 views (the full run of seed 0), for no turn in the curve:
-#: without it the sweep took 291 CPU-seconds against 406 (``benchmarks/results/reproduce-full.json``); halving the chains' draws to 4 x (500 + 500) instead made 14 of
-#: the 27 fits fail a gate and refit (1 of 27 with 1,000 draws), and moved the points by more than their
-#: intervals.
+#: without it the sweep took 291 CPU-seconds against 406 (``benchmarks/results/reproduce-full.json``).
+#: Halving the chains' draws to 4 x (500 + 500) instead made 14 of the 27 fits fail a gate and refit (1 of
+#: 27 with 1,000 draws), and moved the points by more than their intervals.
 PROFILE_SETTINGS = {
     "full": dict(
         levels="0,1.4,2", families="sift,bof,dpm", trials=10000, warmup=500, draws=1000, chains=4,
