@@ -77,7 +77,7 @@ def plot_difficulty_sweep(
             bx.plot(levels, sub.sel(planner=planner).values, ls=ls, marker="o", color=colours[fam])
     bx.set_xticks(levels)
     bx.set_xticklabels([f"{lv:g}" for lv in levels])
-    bx.set_xlabel("difficulty level (0: no nuisance, 1: robot, 2: hard)")
+    bx.set_xlabel("difficulty level (0: no nuisance, 1: robot, 1.4: paper, 2: hard)")
     n_steps = sweep.attrs.get("n_steps")
     censored = f" (never: {int(n_steps) + 1})" if n_steps is not None else ""
     bx.set_ylabel(f"mean views to p(true) > 0.95{censored}")
