@@ -215,8 +215,13 @@ def test_figure_has_both_panels(rng, tmp_path):
         right.get_lines()[0].get_ydata(),
         ds["views_to_confidence"].sel(family="sift", planner="sampled").mean("target"),
     )
+    # the axis names the levels drawn: the book's 0, 1, 2 and the full run's 0, 1.4 (paper), 2
+    assert right.get_xlabel() == "difficulty level (0: no nuisance, 1: robot, 2: hard)"
     path = save_figure(fig, tmp_path / "sweep.png", close=True)
     assert path.stat().st_size > 1000
+    full = plot_difficulty_sweep(ds.assign_coords(level=[0.0, 1.4, 2.0]))
+    assert full.axes[1].get_xlabel() == "difficulty level (0: no nuisance, 1.4: paper, 2: hard)"
+    matplotlib.pyplot.close(full)
 
 
 # -- fits and trials -----------------------------------------------------------------------------------

@@ -77,7 +77,7 @@ def plot_difficulty_sweep(
             bx.plot(levels, sub.sel(planner=planner).values, ls=ls, marker="o", color=colours[fam])
     bx.set_xticks(levels)
     bx.set_xticklabels([f"{lv:g}" for lv in levels])
-    bx.set_xlabel("difficulty level (0: no nuisance, 1: robot, 1.4: paper, 2: hard)")
+    bx.set_xlabel(_level_label(levels))
     n_steps = sweep.attrs.get("n_steps")
     censored = f" (never: {int(n_steps) + 1})" if n_steps is not None else ""
     bx.set_ylabel(f"mean views to p(true) > 0.95{censored}")
@@ -90,3 +90,19 @@ def plot_difficulty_sweep(
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _level_names() -> dict[float, str]:
+    """The knob's named levels (:func:`scrppl.datasets.synthetic.domain.domain_at_level`)."""
+    from scrppl.datasets.synthetic.domain import MAX_LEVEL, PAPER_LEVEL
+
+    return {0.0: "no nuisance", 1.0: "robot", PAPER_LEVEL: "paper", MAX_LEVEL: "hard"}
+
+
+def _level_label(levels) -> str:
+    """The axis label, naming the levels drawn that have a name (``0: no nuisance, 1.4: paper, ...``)."""
+    names = {round(k, 6): v for k, v in _level_names().items()}
+    named = [
+        f"{lv:g}: {names[round(float(lv), 6)]}" for lv in levels if round(float(lv), 6) in names
+    ]
+    return "difficulty level" + (f" ({', '.join(named)})" if named else "")
