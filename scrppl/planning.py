@@ -58,7 +58,7 @@ import numpy as np
 from jax.scipy.special import logsumexp
 
 from scrppl._checks import is_concrete
-from scrppl._planning_kernel import _draws, _sampled_entropies
+from scrppl._planning_kernel import _draws, _sample_responses, _sampled_entropies
 from scrppl.belief import OBJECTIVES, Mixture, check_belief, predictive_mixture
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.views import angular_distance, check_mask_shape, check_view_array
@@ -78,6 +78,7 @@ __all__ = [
     "candidate_mixtures",
     "expected_entropies",
     "mixture_expected_entropies",
+    "predictive_expected_entropies",
     "travel_cost",
     "select_view",
     "choose_view",
@@ -548,6 +549,70 @@ def mixture_expected_entropies(key, mixtures: Mixture, config: PlannerConfig) ->
     raise ValueError(
         f"unknown entropy planner {config.planner!r}; expected one of {ENTROPY_PLANNERS}"
     )
+
+
+def predictive_expected_entropies(
+    key: jax.Array,
+    model: ResponseModel,
+    belief,
+    predictive_model: ResponseModel,
+    predictive_belief,
+    views,
+    n_samples: int = 256,
+    objective: str = "joint",
+) -> jax.Array:
+    """Eq. 5 with the responses drawn from another model: expected entropy of ``belief`` per candidate.
+
+    The sampled planner's estimate (:func:`sampled_expected_entropy`) with its two roles split: the
+    ``M`` responses of each candidate come from ``predictive_model``'s predictive under
+    ``predictive_belief`` (its filter run on the same responses), and each is scored by the entropy of
+    ``belief`` -- the filter whose confidence counts -- updated through ``model``. With the same model and
+    belief in both roles it is :func:`expected_entropies`' sampled planner, the same draws (common random
+    numbers). What it is for: measuring how much of a planner's loss comes from its predictive being
+    wrong, with a predictive fitted on the test objects themselves (the oracle of
+    :mod:`scrppl.sim.decomposition`) while the filter and the metric stay the method's.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key: the same draws serve every candidate.
+    model, belief
+        The filter whose expected entropy is scored (either filter).
+    predictive_model, predictive_belief
+        Where the responses are drawn from: a model on the same grid and its filter's belief.
+    views
+        Candidate robot views ``(phi, e, s)``, integer ``(C, 3)``.
+    n_samples, objective
+        ``M`` and the entropy (:data:`scrppl.belief.OBJECTIVES`).
+
+    Returns
+    -------
+    ``(C,)`` expected entropies in nats.
+    """
+    _check_objective(objective)
+    if isinstance(n_samples, bool) or int(n_samples) != n_samples or int(n_samples) < 1:
+        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+    grid, other = tuple(model.mu.shape[1:]), tuple(predictive_model.mu.shape[1:])
+    if grid != other:
+        raise ValueError(
+            f"the predictive model's grid (states, poses, views) {other} is not the filter's {grid}"
+        )
+    check_planner_inputs(model, belief, views=views)
+    check_planner_inputs(predictive_model, predictive_belief, views=views)
+    return _predictive_expected_entropies(
+        key, model, belief, predictive_model, predictive_belief, views, int(n_samples), objective
+    )
+
+
+@partial(jax.jit, static_argnames=("n_samples", "objective"))
+def _predictive_expected_entropies(
+    key, model, belief, predictive_model, predictive_belief, views, n_samples, objective
+):
+    """:func:`predictive_expected_entropies` without the input checks (compiled)."""
+    scored = candidate_mixtures(model, belief, views)
+    drawn = candidate_mixtures(predictive_model, predictive_belief, views)
+    f = jax.vmap(lambda m: _sample_responses(key, m, n_samples))(drawn)  # (C, M)
+    return jax.vmap(lambda m, fc: posterior_entropy(m, fc, objective).mean())(scored, f)
 
 
 def travel_cost(views, current, motion_cost, n_azimuths: int) -> jax.Array:

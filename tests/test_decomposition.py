@@ -322,7 +322,7 @@ def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
     """With the run's own models as the 'oracle' the oracle rows are the random and confident rows,
     trial by trial: they change the model and nothing else."""
     methods, k_run = experiment_methods(folder)
-    rows = ("random", "confident", "oracle_random", "oracle")
+    rows = ("random", "greedy_joint", "confident", "oracle_greedy", "oracle_random", "oracle")
     ds = D.run_decomposition(
         k_run, methods, rows=rows, oracle_methods=methods, confident=CONFIDENT, **OPTIONS
     )
@@ -330,9 +330,80 @@ def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
     v = ds["views_to_confidence"]
     np.testing.assert_array_equal(v.sel(row="oracle").values, v.sel(row="confident").values)
     np.testing.assert_array_equal(v.sel(row="oracle_random").values, v.sel(row="random").values)
-    # without oracle methods the row is left out
+    np.testing.assert_array_equal(
+        v.sel(row="oracle_greedy").values, v.sel(row="greedy_joint").values
+    )
+    # without oracle methods the rows are left out
     ds = D.run_decomposition(k_run, methods, rows=rows, confident=CONFIDENT, **OPTIONS)
-    assert ds["row"].values.tolist() == ["random", "confident"]
+    assert ds["row"].values.tolist() == ["random", "greedy_joint", "confident"]
+
+
+def oracle_of(model):
+    """A model that disagrees with ``model``: the target shows at views 1 and 3 instead, and it has
+    two draws."""
+    mu = np.asarray(model.mu)
+    mu = np.concatenate([mu[:, :, ::-1], mu[:, :, [1, 2, 3, 0]] + 0.2])
+    return ResponseModel(
+        jnp.asarray(mu, jnp.float32), jnp.full(mu.shape, 0.5, jnp.float32), jnp.zeros((2, 2))
+    )
+
+
+@pytest.mark.parametrize("filter", ["naive_bayes", "instance"])
+def test_oracle_greedy_row_replayed_step_by_step(folder, filter):
+    """The oracle_greedy trials replayed in Python: at every step the view is the unvisited argmin of
+    the method's expected entropy over the oracle's responses, both filters updated with what was seen,
+    the method's belief recorded; and another oracle changes the views."""
+    from scrppl import belief as B
+    from scrppl.planning import predictive_expected_entropies
+    from scrppl.sim.runner import TrialRecord
+
+    methods, k_run = experiment_methods(folder)
+    meth = methods["gaussian+naive_bayes"]
+    model = meth.model._replace(tau=jnp.full((1, 2), 0.3, jnp.float32))
+    oracle = oracle_of(model)
+    m = OPTIONS["n_samples"]
+    config = D.decomposition_planners(m)["greedy_joint"]
+    rec = D.run_oracle_greedy_trials(k_run, model, oracle, meth.trials, config, filter=filter)
+    assert isinstance(rec, TrialRecord) and rec.views.shape == (TRIALS, A, 3)
+    own = D.run_oracle_greedy_trials(k_run, model, model, meth.trials, config, filter=filter)
+    assert not np.array_equal(np.asarray(own.views), np.asarray(rec.views))
+    for i in range(TRIALS):
+        key = jax.random.fold_in(k_run, i)
+        resp_r, avail_r = robot_frame(
+            meth.trials.responses[i], meth.trials.available[i], meth.trials.pose[i]
+        )
+        view = np.asarray(meth.trials.start[i])
+        b, bo = B.init_belief(filter, model), B.init_belief(filter, oracle)
+        visited = np.zeros(A, bool)
+        for t in range(A):
+            if t > 0:
+                views = jnp.asarray([[phi, 0, 0] for phi in range(A)])
+                h = np.array(
+                    predictive_expected_entropies(
+                        jax.random.fold_in(key, t), model, b, oracle, bo, views, m
+                    )
+                )
+                h[visited] = np.inf
+                view = np.array([int(np.argmin(h)), 0, 0])
+            np.testing.assert_array_equal(np.asarray(rec.views[i, t]), view)
+            f = resp_r[view[0], view[1], view[2]]
+            b = B.update(model, b, f, *(int(x) for x in view))
+            bo = B.update(oracle, bo, f, *(int(x) for x in view))
+            visited[view[0]] = True
+            np.testing.assert_allclose(
+                np.asarray(rec.log_belief[i, t]), np.asarray(B.joint_log_belief(b)), atol=1e-5
+            )
+
+
+def test_oracle_greedy_refuses_another_planner_or_grid(folder):
+    methods, k_run = experiment_methods(folder)
+    meth = methods["gaussian+naive_bayes"]
+    with pytest.raises(ValueError, match="eq. 5 as the paper"):
+        D.run_oracle_greedy_trials(k_run, meth.model, meth.model, meth.trials, PC("random"))
+    mu = np.zeros((1, 2, A, 2, 1), np.float32)
+    other = ResponseModel(jnp.asarray(mu), jnp.ones_like(jnp.asarray(mu)), jnp.zeros((1, 2)))
+    with pytest.raises(ValueError, match="grid"):
+        D.run_oracle_greedy_trials(k_run, meth.model, other, meth.trials)
 
 
 def test_oracle_methods_must_be_the_methods_on_the_same_trials(folder):

@@ -31,6 +31,7 @@ ROW_STYLE = {
     "greedy_class": ("eq. 5, H(o)", "tab:cyan", "v"),
     "two_step": ("two-step lookahead", "tab:purple", "s"),
     "confident": ("confident planner", "tab:orange", "D"),
+    "oracle_greedy": ("eq. 5, oracle's predictive", "tab:green", "^"),
     "oracle_random": ("random, oracle model", "0.45", "x"),
     "oracle": ("confident, oracle model", "tab:red", "P"),
 }

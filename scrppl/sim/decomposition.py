@@ -15,6 +15,10 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``rollout``        :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
                    follow, by sampled futures of the model (``K = 64``, each candidate first, then a
                    random order): not myopic
+``oracle_greedy``  eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
+                   (below) while the filter, its entropy and the metric stay the method's
+                   (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
+                   what the planner loses to its predictive being wrong, with nothing else changed
 ``oracle_random``  a random unseen view, the filter with an *oracle model* (below): against ``random``,
                    what the better model does for the filter alone
 ``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
@@ -38,8 +42,8 @@ bootstrap interval (trials resampled as tuples). Beside the ladder: the informat
 each relative azimuth gives about the class (:func:`scrppl.confident.view_information`).
 
 * :data:`ROWS`, :func:`decomposition_planners` -- the ladder and its planners;
-* :func:`run_two_step_trials` -- the trial runner with the two-step planner (the rows of
-  :func:`scrppl.sim.run_trials` otherwise);
+* :func:`run_two_step_trials`, :func:`run_oracle_greedy_trials` -- the trial runners of the two-step
+  and ``oracle_greedy`` rows (the rows of :func:`scrppl.sim.run_trials` otherwise);
 * :func:`run_decomposition` -- views to confidence of every row, method and trial;
 * :func:`summarise_decomposition` -- the per-row numbers; :func:`view_informativeness`;
 * :func:`decompose_target` -- one target of a results folder, on the experiment's trials;
@@ -70,7 +74,13 @@ from scrppl.belief import init_belief, joint_log_belief
 from scrppl.confident import CONFIDENT_PLANNER, ROLLOUT_PLANNER, view_information
 from scrppl.extensions.lookahead import choose_view_two_step
 from scrppl.models.response import ResponseModel, check_response_model
-from scrppl.planning import PlannerConfig, check_planner_config
+from scrppl.planning import (
+    PlannerConfig,
+    candidate_views,
+    check_planner_config,
+    predictive_expected_entropies,
+    select_view,
+)
 from scrppl.sim import metrics as M
 from scrppl.sim.bounds import clairvoyant_bound
 from scrppl.sim.experiment import Method, run_experiment
@@ -92,6 +102,7 @@ __all__ = [
     "MODEL_OPTIMAL_COLUMNS",
     "decomposition_planners",
     "run_two_step_trials",
+    "run_oracle_greedy_trials",
     "run_decomposition",
     "fit_oracle",
     "model_world_trials",
@@ -109,11 +120,11 @@ __all__ = [
 
 #: The rows of the decomposition, top to bottom.
 ROWS = (
-    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "oracle_random",
-    "oracle", "clairvoyant",
+    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "oracle_greedy",
+    "oracle_random", "oracle", "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
-ORACLE_ROWS = ("oracle_random", "oracle")
+ORACLE_ROWS = ("oracle_greedy", "oracle_random", "oracle")
 #: The rows that are planners (all but the clairvoyant bound).
 PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
@@ -143,6 +154,7 @@ _ROW_TITLES = {
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
     "rollout": "rollout planner (views to confidence, sampled futures)",
+    "oracle_greedy": "greedy, H(o, theta) (eq. 5), the oracle model's predictive, the method's filter",
     "oracle_random": "random unseen view, oracle model (fitted on the test instances)",
     "oracle": "confident planner, oracle model (fitted on the test instances)",
     "clairvoyant": "clairvoyant bound",
@@ -301,6 +313,122 @@ def run_two_step_trials(
 
 
 # ------------------------------------------------------------------------------------------------
+# eq. 5 with the oracle's predictive in trials
+
+
+def _oracle_greedy_trial(
+    key, model, oracle_model, responses, available, pose, start, *, filter, config, n_steps
+):
+    """One trial of eq. 5 that draws its responses from ``oracle_model`` and scores ``model``'s filter.
+
+    The trial of :func:`scrppl.sim.run_trial` (start view, then ``n_steps - 1`` steps, step ``t`` with
+    the key ``fold_in(key, t)``) with two filters run on the same responses: the method's (its entropy
+    is scored, its belief recorded) and the oracle's (it gives the predictive the responses are drawn
+    from), scored by :func:`scrppl.planning.predictive_expected_entropies`. Candidates are every azimuth
+    of the ring; no motion cost.
+    """
+    resp_r, avail_r = robot_frame(responses, available, pose)
+    start = jnp.asarray(start, jnp.int32)
+    observe, observe_oracle = observer(model, resp_r), observer(oracle_model, resp_r)
+    visited0 = jnp.zeros(avail_r.shape, bool)
+    true = jnp.asarray(True)
+    belief, visited, current, f0 = observe(init_belief(filter, model), visited0, start, start, true)
+    oracle, *_ = observe_oracle(init_belief(filter, oracle_model), visited0, start, start, true)
+    first = (current, f0, true, joint_log_belief(belief))
+
+    def step(carry, t):
+        belief, oracle, visited, current = carry
+        views, valid = candidate_views(current, visited, avail_r, "azimuth")
+        h = predictive_expected_entropies(
+            jax.random.fold_in(key, t), model, belief, oracle_model, oracle, views,
+            config.n_samples, config.objective,
+        )  # fmt: skip
+        idx, found, _ = select_view(h, 0.0, valid)
+        view = views[idx].astype(jnp.int32)
+        new, visited_new, current_new, f = observe(belief, visited, current, view, found)
+        oracle, *_ = observe_oracle(oracle, visited, current, view, found)
+        record = (current_new, f, found, joint_log_belief(new))
+        return (new, oracle, visited_new, current_new), record
+
+    _, out = jax.lax.scan(step, (belief, oracle, visited, current), jnp.arange(1, n_steps))
+    return TrialRecord(*(jnp.concatenate([a[None], b]) for a, b in zip(first, out, strict=True)))
+
+
+def run_oracle_greedy_trials(
+    key: jax.Array,
+    model: ResponseModel,
+    oracle_model: ResponseModel,
+    trials: Trials,
+    config: PlannerConfig | None = None,
+    *,
+    filter: str = "naive_bayes",
+    n_steps: int | None = None,
+    chunk_size: int = 1024,
+    batch_size: int = 1,
+    devices: int | None = None,
+    progress: bool = False,
+) -> TrialRecord:
+    """:func:`scrppl.sim.run_trials` with eq. 5 drawing its responses from ``oracle_model``'s predictive.
+
+    The ``oracle_greedy`` row of the ladder: what the filter of ``model`` records, when the views are
+    chosen by the expected entropy of that filter over responses drawn from another model (its own
+    filter run beside, on the same responses). Trial ``i`` uses ``fold_in(key, i)`` and its step ``t``
+    ``fold_in(fold_in(key, i), t)``, as :func:`~scrppl.sim.run_trials`; with ``oracle_model`` equal to
+    ``model`` the draws are the ``greedy_joint`` row's.
+
+    Parameters
+    ----------
+    key
+        JAX PRNG key.
+    model
+        The method's model: its filter decides when the trial is confident.
+    oracle_model
+        The model the responses are drawn from (e.g. :func:`fit_oracle`'s), on the same grid.
+    trials
+        The trials (their responses through ``model``'s transform).
+    config
+        An eq. 5 planner (``"sampled"``: ``M`` and the objective; azimuth candidates, no motion cost);
+        default the ``greedy_joint`` row's.
+    filter, n_steps, chunk_size, batch_size, devices, progress
+        As in :func:`~scrppl.sim.run_trials` (the same filter for both models).
+
+    Returns
+    -------
+    TrialRecord
+        Arrays with leading axes ``(T, K)``: the method's filter.
+    """
+    if config is None:
+        config = decomposition_planners()["greedy_joint"]
+    config = check_planner_config(config)
+    if config.planner != "sampled" or config.mode != "azimuth" or config.motion_cost != 0:
+        raise ValueError(
+            "the oracle_greedy row runs eq. 5 as the paper does: planner 'sampled', mode 'azimuth', "
+            f"no motion cost; got {config}"
+        )
+    check_response_model(oracle_model)
+    grid, other = tuple(model.mu.shape[1:]), tuple(oracle_model.mu.shape[1:])
+    if grid != other:
+        raise ValueError(
+            f"the oracle model's grid (states, poses, views) {other} is not the model's {grid}"
+        )
+    n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
+    static = (("filter", filter), ("config", config), ("n_steps", n_steps))
+    out = run_chunked(
+        _oracle_greedy_trial,
+        static,
+        key,
+        (model, oracle_model),
+        (trials.responses, trials.available, trials.pose, trials.start),
+        chunk_size=chunk_size,
+        batch_size=batch_size,
+        devices=devices,
+        progress=progress,
+        desc=f"{filter}/oracle_greedy",
+    )
+    return TrialRecord(*out)
+
+
+# ------------------------------------------------------------------------------------------------
 # the ladder on paired trials
 
 
@@ -341,8 +469,9 @@ def run_decomposition(
         oracle rows (:data:`ORACLE_ROWS`) are left out.
     oracle_methods
         The oracle rows' methods: the same names, filters and trials as ``methods``, with models
-        fitted on the trials' own instances (:func:`fit_oracle`); ``oracle_random`` runs them with the
-        random view and ``oracle`` with the ``confident`` planner.
+        fitted on the trials' own instances (:func:`fit_oracle`); ``oracle_greedy`` draws eq. 5's
+        responses from them (the methods' filters stay), ``oracle_random`` runs them with the random
+        view and ``oracle`` with the ``confident`` planner.
     progress
         Progress bars (one over the rows, the runners' over chunks).
     chunk_size, devices
@@ -379,17 +508,24 @@ def run_decomposition(
     seconds = np.zeros(len(rows))
     for j, row in enumerate(tqdm(rows, desc="decomposition", disable=not progress)):
         t0 = time.perf_counter()
-        if row in ("two_step", "clairvoyant"):
+        if row in ("two_step", "oracle_greedy", "clairvoyant"):
             for i, name in enumerate(names):
                 meth = methods[name]
                 if row == "clairvoyant":
                     views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
                     continue
-                rec = run_two_step_trials(
-                    key, meth.model, meth.trials, configs[row], filter=meth.filter,
-                    n_outer=lookahead_outer, chunk_size=chunk_size, devices=devices,
-                    progress=progress,
-                )  # fmt: skip
+                if row == "oracle_greedy":
+                    rec = run_oracle_greedy_trials(
+                        key, meth.model, oracle_methods[name].model, meth.trials,
+                        configs["greedy_joint"], filter=meth.filter, chunk_size=chunk_size,
+                        devices=devices, progress=progress,
+                    )  # fmt: skip
+                else:
+                    rec = run_two_step_trials(
+                        key, meth.model, meth.trials, configs[row], filter=meth.filter,
+                        n_outer=lookahead_outer, chunk_size=chunk_size, devices=devices,
+                        progress=progress,
+                    )  # fmt: skip
                 met = M.trial_metrics(
                     rec.log_belief, rec.responses, rec.observed, ref.label, ref.pose
                 )
