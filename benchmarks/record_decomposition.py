@@ -39,6 +39,14 @@ instance-aware filter, so a few hundred trials) on the real responses and in the
     python benchmarks/record_decomposition.py --rollout-from RESULTS_bicycle ... \
         --rollout-filter-world-from WORLD_bicycle ...
 
+Eq. 5 drawing its responses from oracle models (fitted on the held-out instances themselves) while the
+method's filter and metric stay (the ``oracle_greedy`` row), beside eq. 5 on the same real trials, from a
+fresh ``make reproduce`` (the pipeline's model), kept as ``oracle_greedy``::
+
+    scrppl decompose --profile full --out RESULTS --trials 5000 \\
+        --rows random,greedy_joint,oracle_greedy,clairvoyant --oracle
+    python benchmarks/record_decomposition.py --oracle-greedy-from RESULTS --model "..."
+
 Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
 [--filter-world-from DIR ...] [--rollout-from DIR ...] [--rollout-filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
 it is not ``RESULTS``; ``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept
@@ -98,6 +106,7 @@ def main(argv=None) -> None:
         ),
         ("--rollout-from", "decomposition.json with the rollout row (real responses)"),
         ("--rollout-filter-world-from", "decomposition-filter-world.json with the rollout row"),
+        ("--oracle-greedy-from", "decomposition.json with the oracle_greedy row"),
     ):
         ap.add_argument(flag, type=Path, nargs="+", default=None, help=f"folders of {what}")
     ap.add_argument("--world-from", type=Path, default=None,
@@ -112,7 +121,9 @@ def main(argv=None) -> None:
         help="the record's key for --filter-world-from (default: filter_world)",
     )  # fmt: skip
     ap.add_argument(
-        "--model", default=None, help="the model of the --filter-world-from runs, in words"
+        "--model",
+        default=None,
+        help="the model of the --filter-world-from or --oracle-greedy-from runs, in words",
     )
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
@@ -120,11 +131,16 @@ def main(argv=None) -> None:
     if args.results is None:
         if args.out.exists():
             old = json.loads(args.out.read_text())
-        parts = (args.filter_world_from, args.rollout_from, args.rollout_filter_world_from)
+        parts = (
+            args.filter_world_from,
+            args.rollout_from,
+            args.rollout_filter_world_from,
+            args.oracle_greedy_from,
+        )
         if all(p is None for p in parts) or "real" not in old:
             raise SystemExit(
-                "give a results folder, or --filter-world-from, --rollout-from or "
-                "--rollout-filter-world-from with an existing record to add to"
+                "give a results folder, or --filter-world-from, --rollout-from, "
+                "--rollout-filter-world-from or --oracle-greedy-from with an existing record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
     else:
@@ -168,6 +184,14 @@ def main(argv=None) -> None:
             raise SystemExit(f"{dirs[0] / name}: not the world {part} expects")
         run["machine"] = machine_description()
         rollout[part] = run
+    oracle_greedy = old.get("oracle_greedy")
+    if args.oracle_greedy_from is not None:
+        oracle_greedy = merge_targets([d / "decomposition.json" for d in args.oracle_greedy_from])
+        if "oracle_greedy" not in oracle_greedy["settings"].get("rows", []):
+            raise SystemExit(f"{args.oracle_greedy_from[0]}: has no oracle_greedy row")
+        oracle_greedy["machine"] = machine_description()
+        if args.model is not None:
+            oracle_greedy["model"] = args.model
     record = {
         "what": (
             "views to confidence from a random view to the clairvoyant bound in the paper regime "
@@ -191,6 +215,7 @@ def main(argv=None) -> None:
             if worlds["filter_world_azimuth_effect"] is not None
             else {}
         ),
+        **({"oracle_greedy": oracle_greedy} if oracle_greedy is not None else {}),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

@@ -798,6 +798,22 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
         mod.main(["--rollout-from", str(tmp_path / "rollw"), "--out", str(out)])
     with pytest.raises(SystemExit, match="has no rollout row"):
         mod.main(["--rollout-from", str(tmp_path), "--out", str(out)])
+    # the oracle_greedy run: its own key with its model, the rest kept; a run without the row refused
+    (tmp_path / "og").mkdir()
+    og = {"seed": SEED, "settings": {"trials": TRIALS, "rows": ["random", "oracle_greedy"]}}
+    (tmp_path / "og" / "decomposition.json").write_text(
+        json.dumps(dict(og, targets={"car": entry}))
+    )
+    mod.main(["--oracle-greedy-from", str(tmp_path / "og"), "--model", "u + v", "--out", str(out)])
+    fifth = json.loads(out.read_text())
+    assert fifth["oracle_greedy"]["targets"] == {"car": entry}
+    assert fifth["oracle_greedy"]["model"] == "u + v"
+    assert fifth["filter_world_azimuth_effect"] == fourth["filter_world_azimuth_effect"]
+    assert fifth["real"] == record["real"]
+    mod.main(["--rollout-from", str(tmp_path / "roll"), "--out", str(out)])
+    assert json.loads(out.read_text())["oracle_greedy"] == fifth["oracle_greedy"]
+    with pytest.raises(SystemExit, match="has no oracle_greedy row"):
+        mod.main(["--oracle-greedy-from", str(tmp_path / "roll"), "--out", str(out)])
     with pytest.raises(SystemExit, match="has no oracle rows"):
         mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):
