@@ -108,6 +108,7 @@ __all__ = [
     "optimal_remaining_views",
     "collapse_draws",
     "confident_scores",
+    "predictive_confident_scores",
     "rollout_scores",
     "rollout_values",
     "choose_view_confident",
@@ -869,6 +870,104 @@ def _fast_scores(key, model, belief, views, valid, m1, m2, threshold):
     go_on = jnp.any(valid2, axis=-1)[:, None] & (steps_left > 1)
     rest = jnp.where(go_on, best, (steps_left - 1) * s1)
     return jnp.where(valid, jnp.mean(s1 + rest, axis=-1), jnp.inf)
+
+
+def predictive_confident_scores(
+    key: jax.Array,
+    model: ResponseModel,
+    belief,
+    predictive_model: ResponseModel,
+    predictive_belief,
+    views,
+    valid,
+    *,
+    n_samples: int = 32,
+    leaf_samples: int | None = None,
+    threshold: float = CONFIDENCE,
+) -> jax.Array:
+    """The confident planner's scores with the responses drawn from another model's predictive.
+
+    :func:`confident_scores` with its two roles split, the way
+    :func:`scrppl.planning.predictive_expected_entropies` splits eq. 5: the responses at both levels
+    come from ``predictive_model`` under ``predictive_belief`` (updated with the first-level response
+    before the second level is drawn), and every step cost from ``belief``, the filter whose confidence
+    counts, updated through ``model``. The second level draws from each state's full predictive over the
+    posterior draws rather than its moment-matched Gaussian, so with one model in both roles it equals
+    :func:`confident_scores` (the same random numbers) exactly for a one-draw model and up to that
+    approximation otherwise. Work ``O(C^2 M L N O A)``: a measuring tool (the oracle rows of
+    :mod:`scrppl.sim.decomposition`), not a robot's planner.
+
+    Parameters
+    ----------
+    key
+        PRNG key of the sampled responses.
+    model, belief
+        The filter whose step costs are counted (either filter).
+    predictive_model, predictive_belief
+        Where the responses come from: a model on the same grid and its filter's belief.
+    views, valid
+        Candidate views ``(C, 3)`` and which may be looked at ``(C,)``.
+    n_samples, leaf_samples, threshold
+        As in :func:`confident_scores`.
+
+    Returns
+    -------
+    ``(C,)`` scores, ``+inf`` for invalid candidates.
+    """
+    _check_scores_inputs(
+        model, belief, views, valid, threshold, n_samples=n_samples, leaf_samples=leaf_samples
+    )
+    grid, other = tuple(model.mu.shape[1:]), tuple(predictive_model.mu.shape[1:])
+    if grid != other:
+        raise ValueError(
+            f"the predictive model's grid (states, poses, views) {other} is not the filter's {grid}"
+        )
+    B.check_belief(predictive_model, predictive_belief)
+    m2 = LEAF_SAMPLES if leaf_samples is None else int(leaf_samples)
+    return _predictive_scores(
+        key, model, belief, predictive_model, predictive_belief, jnp.asarray(views),
+        jnp.asarray(valid, bool), int(n_samples), m2, float(threshold),
+    )  # fmt: skip
+
+
+@partial(jax.jit, static_argnums=(7, 8, 9))
+def _predictive_scores(key, model, belief, pmodel, pbelief, views, valid, m1, m2, threshold):
+    """:func:`predictive_confident_scores` without the input checks (traceable)."""
+    dtype = model.mu.dtype
+    k1, k2 = jax.random.split(key)
+    u1, e1 = _stratified(k1, (), m1, dtype)  # (M1,), shared by every first candidate
+    u2, e2 = _stratified(k2, (m1,), m2, dtype)  # (M1, M2), one set per first-level response
+    alive0 = initial_alive(belief, threshold)
+    steps_left = jnp.sum(valid)
+    n_c = views.shape[0]
+
+    def draw(mixture, u, e):
+        return _draw(mixture.log_weight.ravel(), mixture.mean.ravel(), mixture.var.ravel(), u, e)
+
+    def first(c):
+        v = views[c]
+        f1 = draw(B.predictive_mixture(pmodel, pbelief, v[0], v[1], v[2]), u1, e1)  # (M1,)
+        valid2 = valid & (jnp.arange(n_c) != c)
+
+        def after(f, u2j, e2j):
+            b1 = B.update(model, belief, f, v[0], v[1], v[2])
+            p1 = B.update(pmodel, pbelief, f, v[0], v[1], v[2])
+            s1, alive1 = step_cost(B.class_marginal(b1), alive0, threshold)
+
+            def second(w):
+                f2 = draw(B.predictive_mixture(pmodel, p1, w[0], w[1], w[2]), u2j, e2j)  # (M2,)
+                post = B.mixture_posterior(B.predictive_mixture(model, b1, w[0], w[1], w[2]), f2)
+                s2, _ = _class_step(post, alive1, threshold)
+                return jnp.mean(s2)
+
+            value2 = (steps_left - 1) * jax.vmap(second)(views)  # (C2,)
+            best = jnp.min(jnp.where(valid2, value2, jnp.inf))
+            go_on = valid2.any() & (steps_left > 1)
+            return s1 + jnp.where(go_on, best, (steps_left - 1) * s1)
+
+        return jnp.mean(jax.vmap(after)(f1, u2, e2))
+
+    return jnp.where(valid, jax.vmap(first)(jnp.arange(n_c)), jnp.inf)
 
 
 def _confident_scores(key, model, belief, views, valid, config: PlannerConfig) -> jax.Array:

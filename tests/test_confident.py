@@ -779,3 +779,81 @@ def test_rollout_scores_are_the_value_of_each_view_then_a_random_order(kind, key
         want = np.mean(values)
         se = np.std(np.mean(values, axis=0)) / np.sqrt(k)
         assert abs(got[c] - want) < 5 * se + 0.01, (c, got[c], want, se)
+
+
+def _random_one_draw_model(rng, n=1, a=6, shift=0.0):
+    mu = rng.normal(0.0, 1.5, size=(n, 2, a, 1, 1)) + shift
+    sigma = rng.uniform(0.4, 1.0, size=mu.shape)
+    tau = rng.uniform(0.2, 0.6, size=(n, 2))
+    return ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_predictive_confident_scores_with_one_model_are_the_planners(kind, key):
+    """One model in both roles: the confident planner's own scores (its moment matching is exact for a
+    one-draw model), the same random numbers."""
+    rng = np.random.default_rng(5)
+    model = _random_one_draw_model(rng)
+    b = B.init_belief(kind, model)
+    for phi in (0, 2):
+        b = B.update(model, b, jnp.float32(rng.normal()), phi, 0, 0)
+    views = jnp.asarray([[p, 0, 0] for p in range(6)])
+    valid = jnp.asarray([p not in (0, 2) for p in range(6)])
+    want = np.asarray(C.confident_scores(key, model, b, views, valid))
+    got = np.asarray(C.predictive_confident_scores(key, model, b, model, b, views, valid))
+    np.testing.assert_allclose(got[np.asarray(valid)], want[np.asarray(valid)], atol=1e-5)
+    assert np.all(np.isinf(got[~np.asarray(valid)]))
+
+
+@pytest.mark.parametrize("kind", B.FILTERS)
+def test_predictive_confident_scores_with_a_certain_noiseless_oracle_by_hand(kind, key):
+    """An oracle sure of one state and without noise makes every response known: the score of a first
+    view is its step cost plus the best second view's, counted (r - 1) times, from the method's filter."""
+    rng = np.random.default_rng(7)
+    a = 5
+    model = _random_one_draw_model(rng, a=a)
+    mu = np.asarray(model.mu)
+    tiny = np.full(mu.shape, 1e-4, np.float32)
+    oracle = ResponseModel(jnp.asarray(mu + 0.8), jnp.asarray(tiny), jnp.zeros((1, 2), jnp.float32))
+    prior = np.zeros((2, a))
+    prior[1, 3] = 1.0  # the oracle knows: the target, at pose 3
+    ob = B.init_belief(kind, oracle, prior)
+
+    def response(
+        phi,
+    ):  # what the certain oracle expects at robot view phi (relative azimuth phi - 3)
+        return float(mu[0, 1, (phi - 3) % a, 0, 0] + 0.8)
+
+    b = B.update(model, B.init_belief(kind, model), jnp.float32(response(0)), 0, 0, 0)
+    ob = B.update(oracle, ob, jnp.float32(response(0)), 0, 0, 0)
+    views = jnp.asarray([[p, 0, 0] for p in range(a)])
+    valid = np.arange(a) != 0
+    r = valid.sum()
+    got = np.asarray(C.predictive_confident_scores(key, model, b, oracle, ob, views, valid))
+    alive0 = np.asarray(C.initial_alive(b))
+
+    for c1 in range(1, a):
+        b1 = B.update(model, b, jnp.float32(response(c1)), c1, 0, 0)
+        s1, alive1 = C.step_cost(B.class_marginal(b1), alive0)
+        seconds = []
+        for c2 in range(1, a):
+            if c2 == c1:
+                continue
+            b2 = B.update(model, b1, jnp.float32(response(c2)), c2, 0, 0)
+            s2, _ = C.step_cost(B.class_marginal(b2), alive1)
+            seconds.append((r - 1) * float(s2))
+        want = float(s1) + min(seconds)
+        assert got[c1] == pytest.approx(want, rel=1e-4, abs=1e-6)
+    assert np.isinf(got[0])
+
+
+def test_predictive_confident_scores_refuse_another_grid(key):
+    rng = np.random.default_rng(1)
+    model = _random_one_draw_model(rng, a=6)
+    other = _random_one_draw_model(rng, a=4)
+    b = B.init_belief("naive_bayes", model)
+    views = jnp.asarray([[p, 0, 0] for p in range(6)])
+    with pytest.raises(ValueError, match="grid"):
+        C.predictive_confident_scores(
+            key, model, b, other, B.init_belief("naive_bayes", other), views, jnp.ones(6, bool)
+        )

@@ -322,7 +322,10 @@ def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
     """With the run's own models as the 'oracle' the oracle rows are the random and confident rows,
     trial by trial: they change the model and nothing else."""
     methods, k_run = experiment_methods(folder)
-    rows = ("random", "greedy_joint", "confident", "oracle_greedy", "oracle_random", "oracle")
+    rows = (
+        "random", "greedy_joint", "confident", "oracle_greedy", "oracle_confident", "oracle_random",
+        "oracle",
+    )  # fmt: skip
     ds = D.run_decomposition(
         k_run, methods, rows=rows, oracle_methods=methods, confident=CONFIDENT, **OPTIONS
     )
@@ -332,6 +335,10 @@ def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
     np.testing.assert_array_equal(v.sel(row="oracle_random").values, v.sel(row="random").values)
     np.testing.assert_array_equal(
         v.sel(row="oracle_greedy").values, v.sel(row="greedy_joint").values
+    )
+    # a one-draw model: the confident planner's moment matching is exact, so the same views
+    np.testing.assert_array_equal(
+        v.sel(row="oracle_confident").values, v.sel(row="confident").values
     )
     # without oracle methods the rows are left out
     ds = D.run_decomposition(k_run, methods, rows=rows, confident=CONFIDENT, **OPTIONS)
@@ -349,11 +356,14 @@ def oracle_of(model):
 
 
 @pytest.mark.parametrize("filter", ["naive_bayes", "instance"])
-def test_oracle_greedy_row_replayed_step_by_step(folder, filter):
-    """The oracle_greedy trials replayed in Python: at every step the view is the unvisited argmin of
-    the method's expected entropy over the oracle's responses, both filters updated with what was seen,
-    the method's belief recorded; and another oracle changes the views."""
+@pytest.mark.parametrize("row", ["greedy_joint", "confident"])
+def test_oracle_predictive_rows_replayed_step_by_step(folder, filter, row):
+    """The oracle_greedy and oracle_confident trials replayed in Python: at every step the view is the
+    unvisited argmin of the method's expected entropy (or the confident planner's step costs) over the
+    oracle's responses, both filters updated with what was seen, the method's belief recorded; and
+    another oracle changes the views."""
     from scrppl import belief as B
+    from scrppl.confident import predictive_confident_scores
     from scrppl.planning import predictive_expected_entropies
     from scrppl.sim.runner import TrialRecord
 
@@ -362,10 +372,10 @@ def test_oracle_greedy_row_replayed_step_by_step(folder, filter):
     model = meth.model._replace(tau=jnp.full((1, 2), 0.3, jnp.float32))
     oracle = oracle_of(model)
     m = OPTIONS["n_samples"]
-    config = D.decomposition_planners(m)["greedy_joint"]
-    rec = D.run_oracle_greedy_trials(k_run, model, oracle, meth.trials, config, filter=filter)
+    config = D.decomposition_planners(m, confident=CONFIDENT)[row]
+    rec = D.run_oracle_predictive_trials(k_run, model, oracle, meth.trials, config, filter=filter)
     assert isinstance(rec, TrialRecord) and rec.views.shape == (TRIALS, A, 3)
-    own = D.run_oracle_greedy_trials(k_run, model, model, meth.trials, config, filter=filter)
+    own = D.run_oracle_predictive_trials(k_run, model, model, meth.trials, config, filter=filter)
     assert not np.array_equal(np.asarray(own.views), np.asarray(rec.views))
     for i in range(TRIALS):
         key = jax.random.fold_in(k_run, i)
@@ -378,11 +388,15 @@ def test_oracle_greedy_row_replayed_step_by_step(folder, filter):
         for t in range(A):
             if t > 0:
                 views = jnp.asarray([[phi, 0, 0] for phi in range(A)])
-                h = np.array(
-                    predictive_expected_entropies(
-                        jax.random.fold_in(key, t), model, b, oracle, bo, views, m
+                k = jax.random.fold_in(key, t)
+                if row == "confident":
+                    h = np.array(
+                        predictive_confident_scores(
+                            k, model, b, oracle, bo, views, ~visited, n_samples=CONFIDENT.n_samples
+                        )
                     )
-                )
+                else:
+                    h = np.array(predictive_expected_entropies(k, model, b, oracle, bo, views, m))
                 h[visited] = np.inf
                 view = np.array([int(np.argmin(h)), 0, 0])
             np.testing.assert_array_equal(np.asarray(rec.views[i, t]), view)
@@ -398,12 +412,12 @@ def test_oracle_greedy_row_replayed_step_by_step(folder, filter):
 def test_oracle_greedy_refuses_another_planner_or_grid(folder):
     methods, k_run = experiment_methods(folder)
     meth = methods["gaussian+naive_bayes"]
-    with pytest.raises(ValueError, match="eq. 5 as the paper"):
-        D.run_oracle_greedy_trials(k_run, meth.model, meth.model, meth.trials, PC("random"))
+    with pytest.raises(ValueError, match="planner 'sampled' or 'confident'"):
+        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, meth.trials, PC("random"))
     mu = np.zeros((1, 2, A, 2, 1), np.float32)
     other = ResponseModel(jnp.asarray(mu), jnp.ones_like(jnp.asarray(mu)), jnp.zeros((1, 2)))
     with pytest.raises(ValueError, match="grid"):
-        D.run_oracle_greedy_trials(k_run, meth.model, other, meth.trials)
+        D.run_oracle_predictive_trials(k_run, meth.model, other, meth.trials)
 
 
 def test_oracle_methods_must_be_the_methods_on_the_same_trials(folder):

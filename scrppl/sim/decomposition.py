@@ -19,6 +19,8 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
                    (below) while the filter, its entropy and the metric stay the method's
                    (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
                    what the planner loses to its predictive being wrong, with nothing else changed
+``oracle_confident`` the same for the confident planner
+                   (:func:`scrppl.confident.predictive_confident_scores`), against ``confident``
 ``oracle_random``  a random unseen view, the filter with an *oracle model* (below): against ``random``,
                    what the better model does for the filter alone
 ``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
@@ -42,8 +44,8 @@ bootstrap interval (trials resampled as tuples). Beside the ladder: the informat
 each relative azimuth gives about the class (:func:`scrppl.confident.view_information`).
 
 * :data:`ROWS`, :func:`decomposition_planners` -- the ladder and its planners;
-* :func:`run_two_step_trials`, :func:`run_oracle_greedy_trials` -- the trial runners of the two-step
-  and ``oracle_greedy`` rows (the rows of :func:`scrppl.sim.run_trials` otherwise);
+* :func:`run_two_step_trials`, :func:`run_oracle_predictive_trials` -- the trial runners of the
+  two-step and oracle-predictive rows (the rows of :func:`scrppl.sim.run_trials` otherwise);
 * :func:`run_decomposition` -- views to confidence of every row, method and trial;
 * :func:`summarise_decomposition` -- the per-row numbers; :func:`view_informativeness`;
 * :func:`decompose_target` -- one target of a results folder, on the experiment's trials;
@@ -71,14 +73,20 @@ import xarray as xr
 from tqdm.auto import tqdm
 
 from scrppl.belief import init_belief, joint_log_belief
-from scrppl.confident import CONFIDENT_PLANNER, ROLLOUT_PLANNER, view_information
+from scrppl.confident import (
+    CONFIDENT_PLANNER,
+    LEAF_SAMPLES,
+    ROLLOUT_PLANNER,
+    _predictive_scores,
+    view_information,
+)
 from scrppl.extensions.lookahead import choose_view_two_step
 from scrppl.models.response import ResponseModel, check_response_model
 from scrppl.planning import (
     PlannerConfig,
+    _predictive_expected_entropies,
     candidate_views,
     check_planner_config,
-    predictive_expected_entropies,
     select_view,
 )
 from scrppl.sim import metrics as M
@@ -102,7 +110,7 @@ __all__ = [
     "MODEL_OPTIMAL_COLUMNS",
     "decomposition_planners",
     "run_two_step_trials",
-    "run_oracle_greedy_trials",
+    "run_oracle_predictive_trials",
     "run_decomposition",
     "fit_oracle",
     "model_world_trials",
@@ -121,10 +129,10 @@ __all__ = [
 #: The rows of the decomposition, top to bottom.
 ROWS = (
     "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "oracle_greedy",
-    "oracle_random", "oracle", "clairvoyant",
+    "oracle_confident", "oracle_random", "oracle", "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
-ORACLE_ROWS = ("oracle_greedy", "oracle_random", "oracle")
+ORACLE_ROWS = ("oracle_greedy", "oracle_confident", "oracle_random", "oracle")
 #: The rows that are planners (all but the clairvoyant bound).
 PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
@@ -155,6 +163,7 @@ _ROW_TITLES = {
     "confident": "confident planner (views to confidence)",
     "rollout": "rollout planner (views to confidence, sampled futures)",
     "oracle_greedy": "greedy, H(o, theta) (eq. 5), the oracle model's predictive, the method's filter",
+    "oracle_confident": "confident planner, the oracle model's predictive, the method's filter",
     "oracle_random": "random unseen view, oracle model (fitted on the test instances)",
     "oracle": "confident planner, oracle model (fitted on the test instances)",
     "clairvoyant": "clairvoyant bound",
@@ -316,16 +325,17 @@ def run_two_step_trials(
 # eq. 5 with the oracle's predictive in trials
 
 
-def _oracle_greedy_trial(
+def _oracle_trial(
     key, model, oracle_model, responses, available, pose, start, *, filter, config, n_steps
 ):
-    """One trial of eq. 5 that draws its responses from ``oracle_model`` and scores ``model``'s filter.
+    """One trial of a planner that draws its responses from ``oracle_model`` and scores ``model``'s filter.
 
     The trial of :func:`scrppl.sim.run_trial` (start view, then ``n_steps - 1`` steps, step ``t`` with
-    the key ``fold_in(key, t)``) with two filters run on the same responses: the method's (its entropy
-    is scored, its belief recorded) and the oracle's (it gives the predictive the responses are drawn
-    from), scored by :func:`scrppl.planning.predictive_expected_entropies`. Candidates are every azimuth
-    of the ring; no motion cost.
+    the key ``fold_in(key, t)``) with two filters run on the same responses: the method's (its entropy or
+    step costs are scored, its belief recorded) and the oracle's (it gives the predictive the responses
+    are drawn from), scored by :func:`scrppl.planning.predictive_expected_entropies` (eq. 5) or
+    :func:`scrppl.confident.predictive_confident_scores` (the confident planner). Candidates are every
+    azimuth of the ring; no motion cost.
     """
     resp_r, avail_r = robot_frame(responses, available, pose)
     start = jnp.asarray(start, jnp.int32)
@@ -339,10 +349,16 @@ def _oracle_greedy_trial(
     def step(carry, t):
         belief, oracle, visited, current = carry
         views, valid = candidate_views(current, visited, avail_r, "azimuth")
-        h = predictive_expected_entropies(
-            jax.random.fold_in(key, t), model, belief, oracle_model, oracle, views,
-            config.n_samples, config.objective,
-        )  # fmt: skip
+        k = jax.random.fold_in(key, t)
+        if config.planner == "confident":
+            h = _predictive_scores(
+                k, model, belief, oracle_model, oracle, views, valid, config.n_samples,
+                LEAF_SAMPLES, M.CONFIDENCE,
+            )  # fmt: skip
+        else:
+            h = _predictive_expected_entropies(
+                k, model, belief, oracle_model, oracle, views, config.n_samples, config.objective
+            )
         idx, found, _ = select_view(h, 0.0, valid)
         view = views[idx].astype(jnp.int32)
         new, visited_new, current_new, f = observe(belief, visited, current, view, found)
@@ -354,7 +370,7 @@ def _oracle_greedy_trial(
     return TrialRecord(*(jnp.concatenate([a[None], b]) for a, b in zip(first, out, strict=True)))
 
 
-def run_oracle_greedy_trials(
+def run_oracle_predictive_trials(
     key: jax.Array,
     model: ResponseModel,
     oracle_model: ResponseModel,
@@ -368,13 +384,15 @@ def run_oracle_greedy_trials(
     devices: int | None = None,
     progress: bool = False,
 ) -> TrialRecord:
-    """:func:`scrppl.sim.run_trials` with eq. 5 drawing its responses from ``oracle_model``'s predictive.
+    """:func:`scrppl.sim.run_trials` with a planner drawing its responses from ``oracle_model``'s predictive.
 
-    The ``oracle_greedy`` row of the ladder: what the filter of ``model`` records, when the views are
-    chosen by the expected entropy of that filter over responses drawn from another model (its own
-    filter run beside, on the same responses). Trial ``i`` uses ``fold_in(key, i)`` and its step ``t``
+    The ``oracle_greedy`` and ``oracle_confident`` rows of the ladder: what the filter of ``model``
+    records, when the views are chosen by eq. 5 (the expected entropy of that filter) or the confident
+    planner (its expected step costs) over responses drawn from another model (its own filter run
+    beside, on the same responses). Trial ``i`` uses ``fold_in(key, i)`` and its step ``t``
     ``fold_in(fold_in(key, i), t)``, as :func:`~scrppl.sim.run_trials`; with ``oracle_model`` equal to
-    ``model`` the draws are the ``greedy_joint`` row's.
+    ``model`` eq. 5's draws are the ``greedy_joint`` row's (and the confident planner's the
+    ``confident`` row's, its second level without the moment matching).
 
     Parameters
     ----------
@@ -387,8 +405,8 @@ def run_oracle_greedy_trials(
     trials
         The trials (their responses through ``model``'s transform).
     config
-        An eq. 5 planner (``"sampled"``: ``M`` and the objective; azimuth candidates, no motion cost);
-        default the ``greedy_joint`` row's.
+        Eq. 5 (``"sampled"``: ``M`` and the objective) or the confident planner (``"confident"``: ``M``
+        first-level responses), azimuth candidates, no motion cost; default the ``greedy_joint`` row's.
     filter, n_steps, chunk_size, batch_size, devices, progress
         As in :func:`~scrppl.sim.run_trials` (the same filter for both models).
 
@@ -400,10 +418,14 @@ def run_oracle_greedy_trials(
     if config is None:
         config = decomposition_planners()["greedy_joint"]
     config = check_planner_config(config)
-    if config.planner != "sampled" or config.mode != "azimuth" or config.motion_cost != 0:
+    if (
+        config.planner not in ("sampled", "confident")
+        or config.mode != "azimuth"
+        or config.motion_cost != 0
+    ):
         raise ValueError(
-            "the oracle_greedy row runs eq. 5 as the paper does: planner 'sampled', mode 'azimuth', "
-            f"no motion cost; got {config}"
+            "the oracle predictive rows run eq. 5 or the confident planner as the paper's planner "
+            f"runs: planner 'sampled' or 'confident', mode 'azimuth', no motion cost; got {config}"
         )
     check_response_model(oracle_model)
     grid, other = tuple(model.mu.shape[1:]), tuple(oracle_model.mu.shape[1:])
@@ -414,7 +436,7 @@ def run_oracle_greedy_trials(
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     static = (("filter", filter), ("config", config), ("n_steps", n_steps))
     out = run_chunked(
-        _oracle_greedy_trial,
+        _oracle_trial,
         static,
         key,
         (model, oracle_model),
@@ -423,7 +445,7 @@ def run_oracle_greedy_trials(
         batch_size=batch_size,
         devices=devices,
         progress=progress,
-        desc=f"{filter}/oracle_greedy",
+        desc=f"{filter}/oracle_{config.planner}",
     )
     return TrialRecord(*out)
 
@@ -469,9 +491,10 @@ def run_decomposition(
         oracle rows (:data:`ORACLE_ROWS`) are left out.
     oracle_methods
         The oracle rows' methods: the same names, filters and trials as ``methods``, with models
-        fitted on the trials' own instances (:func:`fit_oracle`); ``oracle_greedy`` draws eq. 5's
-        responses from them (the methods' filters stay), ``oracle_random`` runs them with the random
-        view and ``oracle`` with the ``confident`` planner.
+        fitted on the trials' own instances (:func:`fit_oracle`); ``oracle_greedy`` and
+        ``oracle_confident`` draw eq. 5's and the confident planner's responses from them (the methods'
+        filters stay), ``oracle_random`` runs them with the random view and ``oracle`` with the
+        ``confident`` planner.
     progress
         Progress bars (one over the rows, the runners' over chunks).
     chunk_size, devices
@@ -508,17 +531,18 @@ def run_decomposition(
     seconds = np.zeros(len(rows))
     for j, row in enumerate(tqdm(rows, desc="decomposition", disable=not progress)):
         t0 = time.perf_counter()
-        if row in ("two_step", "oracle_greedy", "clairvoyant"):
+        if row in ("two_step", "oracle_greedy", "oracle_confident", "clairvoyant"):
             for i, name in enumerate(names):
                 meth = methods[name]
                 if row == "clairvoyant":
                     views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
                     continue
-                if row == "oracle_greedy":
-                    rec = run_oracle_greedy_trials(
+                if row in ("oracle_greedy", "oracle_confident"):
+                    rec = run_oracle_predictive_trials(
                         key, meth.model, oracle_methods[name].model, meth.trials,
-                        configs["greedy_joint"], filter=meth.filter, chunk_size=chunk_size,
-                        devices=devices, progress=progress,
+                        configs["greedy_joint" if row == "oracle_greedy" else "confident"],
+                        filter=meth.filter, chunk_size=chunk_size, devices=devices,
+                        progress=progress,
                     )  # fmt: skip
                 else:
                     rec = run_two_step_trials(
