@@ -47,6 +47,13 @@ fresh ``make reproduce`` (the pipeline's model), kept as ``oracle_greedy``::
         --rows random,greedy_joint,oracle_greedy,clairvoyant --oracle
     python benchmarks/record_decomposition.py --oracle-greedy-from RESULTS --model "..."
 
+The same for the confident planner (``oracle_confident``; about 0.2 s a decision, so 2,000 trials, one
+folder per target holding the same run's fits and the oracle fits above), kept as ``oracle_confident``::
+
+    scrppl decompose --profile full --out RESULTS_T --targets T --trials 2000 \\
+        --rows random,confident,oracle_confident,clairvoyant --oracle
+    python benchmarks/record_decomposition.py --oracle-confident-from RESULTS_bicycle ... --model "..."
+
 Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
 [--filter-world-from DIR ...] [--rollout-from DIR ...] [--rollout-filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
 it is not ``RESULTS``; ``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept
@@ -107,6 +114,7 @@ def main(argv=None) -> None:
         ("--rollout-from", "decomposition.json with the rollout row (real responses)"),
         ("--rollout-filter-world-from", "decomposition-filter-world.json with the rollout row"),
         ("--oracle-greedy-from", "decomposition.json with the oracle_greedy row"),
+        ("--oracle-confident-from", "decomposition.json with the oracle_confident row"),
     ):
         ap.add_argument(flag, type=Path, nargs="+", default=None, help=f"folders of {what}")
     ap.add_argument("--world-from", type=Path, default=None,
@@ -136,11 +144,13 @@ def main(argv=None) -> None:
             args.rollout_from,
             args.rollout_filter_world_from,
             args.oracle_greedy_from,
+            args.oracle_confident_from,
         )
         if all(p is None for p in parts) or "real" not in old:
             raise SystemExit(
                 "give a results folder, or --filter-world-from, --rollout-from, "
-                "--rollout-filter-world-from or --oracle-greedy-from with an existing record to add to"
+                "--rollout-filter-world-from, --oracle-greedy-from or --oracle-confident-from with an "
+                "existing record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
     else:
@@ -184,14 +194,20 @@ def main(argv=None) -> None:
             raise SystemExit(f"{dirs[0] / name}: not the world {part} expects")
         run["machine"] = machine_description()
         rollout[part] = run
-    oracle_greedy = old.get("oracle_greedy")
-    if args.oracle_greedy_from is not None:
-        oracle_greedy = merge_targets([d / "decomposition.json" for d in args.oracle_greedy_from])
-        if "oracle_greedy" not in oracle_greedy["settings"].get("rows", []):
-            raise SystemExit(f"{args.oracle_greedy_from[0]}: has no oracle_greedy row")
-        oracle_greedy["machine"] = machine_description()
+    oracle_rows = {k: old.get(k) for k in ("oracle_greedy", "oracle_confident")}
+    for row, dirs in (
+        ("oracle_greedy", args.oracle_greedy_from),
+        ("oracle_confident", args.oracle_confident_from),
+    ):
+        if dirs is None:
+            continue
+        run = merge_targets([d / "decomposition.json" for d in dirs])
+        if row not in run["settings"].get("rows", []):
+            raise SystemExit(f"{dirs[0]}: has no {row} row")
+        run["machine"] = machine_description()
         if args.model is not None:
-            oracle_greedy["model"] = args.model
+            run["model"] = args.model
+        oracle_rows[row] = run
     record = {
         "what": (
             "views to confidence from a random view to the clairvoyant bound in the paper regime "
@@ -215,7 +231,7 @@ def main(argv=None) -> None:
             if worlds["filter_world_azimuth_effect"] is not None
             else {}
         ),
-        **({"oracle_greedy": oracle_greedy} if oracle_greedy is not None else {}),
+        **{k: v for k, v in oracle_rows.items() if v is not None},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:

@@ -828,6 +828,22 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     assert json.loads(out.read_text())["oracle_greedy"] == fifth["oracle_greedy"]
     with pytest.raises(SystemExit, match="has no oracle_greedy row"):
         mod.main(["--oracle-greedy-from", str(tmp_path / "roll"), "--out", str(out)])
+    # the oracle_confident runs, one folder per target, merged into their own key
+    for target in ("car", "bike"):
+        (tmp_path / f"oc-{target}").mkdir()
+        oc = {"seed": SEED, "settings": {"trials": TRIALS, "rows": ["random", "oracle_confident"]}}
+        (tmp_path / f"oc-{target}" / "decomposition.json").write_text(
+            json.dumps(dict(oc, targets={target: entry}))
+        )
+    mod.main(
+        ["--oracle-confident-from", str(tmp_path / "oc-car"), str(tmp_path / "oc-bike"),
+         "--out", str(out)]
+    )  # fmt: skip
+    sixth = json.loads(out.read_text())
+    assert list(sixth["oracle_confident"]["targets"]) == ["car", "bike"]
+    assert sixth["oracle_greedy"] == fifth["oracle_greedy"]
+    with pytest.raises(SystemExit, match="has no oracle_confident row"):
+        mod.main(["--oracle-confident-from", str(tmp_path / "og"), "--out", str(out)])
     with pytest.raises(SystemExit, match="has no oracle rows"):
         mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):
