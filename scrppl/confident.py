@@ -917,11 +917,7 @@ def predictive_confident_scores(
     _check_scores_inputs(
         model, belief, views, valid, threshold, n_samples=n_samples, leaf_samples=leaf_samples
     )
-    grid, other = tuple(model.mu.shape[1:]), tuple(predictive_model.mu.shape[1:])
-    if grid != other:
-        raise ValueError(
-            f"the predictive model's grid (states, poses, views) {other} is not the filter's {grid}"
-        )
+    P.check_same_grid(model, predictive_model)
     B.check_belief(predictive_model, predictive_belief)
     m2 = LEAF_SAMPLES if leaf_samples is None else int(leaf_samples)
     return _predictive_scores(

@@ -84,6 +84,7 @@ __all__ = [
     "choose_view",
     "check_planner_config",
     "check_planner_inputs",
+    "check_same_grid",
 ]
 
 #: Planner names accepted by :func:`choose_view`.
@@ -207,6 +208,19 @@ def _checked(config, planners: tuple[str, ...] = PLANNERS) -> tuple[PlannerConfi
 def _check_objective(objective: str) -> None:
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
+
+
+def check_same_grid(model: ResponseModel, other: ResponseModel, name: str = "predictive") -> None:
+    """Raise ``ValueError`` if ``other`` (a model whose predictive a planner draws from) is on another grid.
+
+    The two models must have the same states, poses and views (``mu.shape[1:]``); their posterior draws
+    may differ in number.
+    """
+    grid, theirs = tuple(model.mu.shape[1:]), tuple(other.mu.shape[1:])
+    if grid != theirs:
+        raise ValueError(
+            f"the {name} model's grid (states, poses, views) {theirs} is not the filter's {grid}"
+        )
 
 
 def check_planner_inputs(
@@ -592,11 +606,7 @@ def predictive_expected_entropies(
     _check_objective(objective)
     if isinstance(n_samples, bool) or int(n_samples) != n_samples or int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
-    grid, other = tuple(model.mu.shape[1:]), tuple(predictive_model.mu.shape[1:])
-    if grid != other:
-        raise ValueError(
-            f"the predictive model's grid (states, poses, views) {other} is not the filter's {grid}"
-        )
+    check_same_grid(model, predictive_model)
     check_planner_inputs(model, belief, views=views)
     check_planner_inputs(predictive_model, predictive_belief, views=views)
     return _predictive_expected_entropies(

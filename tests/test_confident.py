@@ -788,7 +788,11 @@ def _random_one_draw_model(rng, n=1, a=6, shift=0.0):
     return ResponseModel(*(jnp.asarray(x, jnp.float32) for x in (mu, sigma, tau)))
 
 
-@pytest.mark.parametrize("kind", B.FILTERS)
+# the instance-aware filter in make test, naive Bayes in make test-slow (CI)
+@pytest.mark.parametrize(
+    "kind",
+    [pytest.param(k, marks=pytest.mark.slow) if k == "naive_bayes" else k for k in B.FILTERS],
+)
 def test_predictive_confident_scores_with_one_model_are_the_planners(kind, key):
     """One model in both roles: the confident planner's own scores (its moment matching is exact for a
     one-draw model), the same random numbers."""

@@ -549,7 +549,11 @@ def numpy_cross_expected_entropy(drawn, scored, objective):
     return integrate.quad(integrand, lo, hi, limit=400, epsabs=1e-10, epsrel=1e-8)[0]
 
 
-@pytest.mark.parametrize("kind", B.FILTERS)
+# the instance-aware filter in make test, naive Bayes (about 11 s) in make test-slow (CI)
+@pytest.mark.parametrize(
+    "kind",
+    [pytest.param(k, marks=pytest.mark.slow) if k == "naive_bayes" else k for k in B.FILTERS],
+)
 def test_predictive_expected_entropies_against_quadrature_and_eq5(rng, key, kind):
     """Eq. 5 with another model's predictive: the method's entropy, averaged over the other model's
     responses (SciPy quadrature of the two mixtures); with one model in both roles, eq. 5's numbers."""

@@ -87,6 +87,7 @@ from scrppl.planning import (
     _predictive_expected_entropies,
     candidate_views,
     check_planner_config,
+    check_same_grid,
     select_view,
 )
 from scrppl.sim import metrics as M
@@ -306,19 +307,11 @@ def run_two_step_trials(
         ("n_outer", int(n_outer)),
         ("n_steps", n_steps),
     )
-    out = run_chunked(
-        _two_step_trial,
-        static,
-        key,
-        (model,),
-        (trials.responses, trials.available, trials.pose, trials.start),
-        chunk_size=chunk_size,
-        batch_size=batch_size,
-        devices=devices,
-        progress=progress,
-        desc=f"{filter}/two_step",
-    )
-    return TrialRecord(*out)
+    return _run_records(
+        _two_step_trial, static, key, (model,), trials,
+        dict(chunk_size=chunk_size, batch_size=batch_size, devices=devices, progress=progress),
+        f"{filter}/two_step",
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------------
@@ -428,26 +421,20 @@ def run_oracle_predictive_trials(
             f"runs: planner 'sampled' or 'confident', mode 'azimuth', no motion cost; got {config}"
         )
     check_response_model(oracle_model)
-    grid, other = tuple(model.mu.shape[1:]), tuple(oracle_model.mu.shape[1:])
-    if grid != other:
-        raise ValueError(
-            f"the oracle model's grid (states, poses, views) {other} is not the model's {grid}"
-        )
+    check_same_grid(model, oracle_model, "oracle")
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
     static = (("filter", filter), ("config", config), ("n_steps", n_steps))
-    out = run_chunked(
-        _oracle_trial,
-        static,
-        key,
-        (model, oracle_model),
-        (trials.responses, trials.available, trials.pose, trials.start),
-        chunk_size=chunk_size,
-        batch_size=batch_size,
-        devices=devices,
-        progress=progress,
-        desc=f"{filter}/oracle_{config.planner}",
-    )
-    return TrialRecord(*out)
+    return _run_records(
+        _oracle_trial, static, key, (model, oracle_model), trials,
+        dict(chunk_size=chunk_size, batch_size=batch_size, devices=devices, progress=progress),
+        f"{filter}/oracle_{config.planner}",
+    )  # fmt: skip
+
+
+def _run_records(trial_fn, static, key, shared, trials: Trials, options, desc) -> TrialRecord:
+    """:func:`scrppl.sim.runner.run_chunked` over the trials' responses, as a :class:`TrialRecord`."""
+    per_trial = (trials.responses, trials.available, trials.pose, trials.start)
+    return TrialRecord(*run_chunked(trial_fn, static, key, shared, per_trial, desc=desc, **options))
 
 
 # ------------------------------------------------------------------------------------------------
