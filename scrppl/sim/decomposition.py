@@ -5,33 +5,33 @@ a *ladder* of planners on the **same** trials -- the same instances, poses, star
 the same PRNG key for every row (trial ``i`` uses ``fold_in(key, i)``, step ``t`` ``fold_in(fold_in(key,
 i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing from the row above:
 
-=================  ================================================================================
-``random``         a random unseen view (the paper's baseline)
-``greedy_joint``   eq. 5: one step ahead, joint entropy ``H(o, theta)``, ``M`` samples (the paper)
-``greedy_class``   the same with the class entropy ``H(o)``: the objective
-``two_step``       two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
-``confident``      :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
-                   depth 2): the metric itself
-``rollout``        :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
-                   follow, by sampled futures of the model (``K = 64``, each candidate first, then a
-                   random order): not myopic
-``oracle_greedy``  eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
-                   (below) while the filter, its entropy and the metric stay the method's
-                   (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
-                   what the planner loses to its predictive being wrong, with nothing else changed
-``oracle_confident`` the same for the confident planner
-                   (:func:`scrppl.confident.predictive_confident_scores`), against ``confident``
-``oracle_random``  a random unseen view, the filter with an *oracle model* (below): against ``random``,
-                   what the better model does for the filter alone
-``oracle``         the confident planner and the filter with an *oracle model*: fitted on the held-out
-                   (``test``) instances themselves (:func:`fit_oracle`), so what it gains over
-                   ``confident`` is what is lost to the model being wrong about the objects seen;
-                   run only when oracle models are given. Its filter is the oracle model's, so the
-                   clairvoyant bound below (the run's model's) does not bound it: it can go lower,
-                   and its share of the room above 1
-``clairvoyant``    :func:`scrppl.sim.bounds.clairvoyant_bound`: the fewest views had every response been
-                   known (no planner with the same filter does better on any trial)
-=================  ================================================================================
+====================  ==============================================================================
+``random``            a random unseen view (the paper's baseline)
+``greedy_joint``      eq. 5: one step ahead, joint entropy ``H(o, theta)``, ``M`` samples (the paper)
+``greedy_class``      the same with the class entropy ``H(o)``: the objective
+``two_step``          two-step lookahead on ``H(o)`` (:mod:`scrppl.extensions.lookahead`, sampled): depth
+``confident``         :data:`scrppl.confident.CONFIDENT_PLANNER`: expected views to confidence (``M = 32``,
+                      depth 2): the metric itself
+``rollout``           :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
+                      follow, by sampled futures of the model (``K = 64``, each candidate first, then a
+                      random order): not myopic
+``oracle_greedy``     eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
+                      (below) while the filter, its entropy and the metric stay the method's
+                      (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
+                      what the planner loses to its predictive being wrong, with nothing else changed
+``oracle_confident``  the same for the confident planner
+                      (:func:`scrppl.confident.predictive_confident_scores`), against ``confident``
+``oracle_random``     a random unseen view, the filter with an *oracle model* (below): against ``random``,
+                      what the better model does for the filter alone
+``oracle``            the confident planner and the filter with an *oracle model*: fitted on the held-out
+                      (``test``) instances themselves (:func:`fit_oracle`), so what it gains over
+                      ``confident`` is what is lost to the model being wrong about the objects seen;
+                      run only when oracle models are given. Its filter is the oracle model's, so the
+                      clairvoyant bound below (the run's model's) does not bound it: it can go lower,
+                      and its share of the room above 1
+``clairvoyant``       :func:`scrppl.sim.bounds.clairvoyant_bound`: the fewest views had every response been
+                      known (no planner with the same filter does better on any trial)
+====================  ==============================================================================
 
 Each row is scored by the experiment's *views to confidence* (:func:`scrppl.sim.metrics.trial_metrics`:
 first ``k`` with ``p(o* | f_1..f_k) > 0.95``, ``A + 1`` if never), for every method the experiment runs
