@@ -412,6 +412,7 @@ def test_detector_ap_and_azimuth_dependence_on_constructed_tables():
 
 
 # -- the command and the figures --------------------------------------------------------------------
+@pytest.mark.slow  # `scrppl detect` on a rendered toy dataset, figures included
 def test_cli_detect_end_to_end(toy, tmp_path, capsys):
     from scrppl.cli import main
 

@@ -4,7 +4,8 @@
   warnings as errors) and every check in it passes.
 * Every student copy (``scripts/make_student.py``) executes up to its stubs, and every check fails with
   "not answered yet"; with deliberately wrong answers (``scrppl.exercises.wrong_answers``) in place of the
-  stubs, every check fails with a hint.
+  stubs, every check fails with a hint (one kernel a copy: the wrong answers are probed after its last
+  cell).
 * No solution text or solution marker reaches a student copy.
 * The notebooks follow the format (``notebooks/README.md``) and are wired into the book.
 
@@ -104,30 +105,19 @@ def test_solution_notebook_executes_and_its_checks_pass(path):
 
 # -- the student copies -----------------------------------------------------------------------------
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=IDS)
-def test_student_copy_stops_at_its_stubs(path):
-    """Executed cell by cell, every check of the untouched copy fails, and nothing else does."""
-    nb = execute(make_student.student_copy(path), allow_errors=True)
-    first_error = next(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and errors(c))
-    first_check = next(i for i, c in enumerate(nb.cells) if is_check(c))
-    assert first_error == first_check, "the copy fails before its first check"
-    for cell in nb.cells:
-        if cell.cell_type != "code":
-            continue
-        if is_check(cell):
-            (err,) = errors(cell)
-            assert err.ename == "ExerciseNotAnswered", (cell.source, err.ename, err.evalue)
-            assert "not answered yet" in err.evalue
-        else:
-            assert not errors(cell), f"{path.name}: a non-check cell failed:\n{cell.source}"
+def test_student_copy_stops_at_its_stubs_and_wrong_answers_fail(path):
+    """One execution of the student copy, cell by cell, then a probe per known wrong answer.
 
-
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=IDS)
-def test_wrong_answers_fail_their_checks_in_the_student_copy(path):
-    """Each check cell of the copy, run after binding its answers to each known wrong answer, fails."""
+    * Untouched, every check of the copy fails with "not answered yet", and nothing else fails.
+    * After the last cell, each check is run again with its answers bound to each wrong answer of
+      :func:`scrppl.exercises.wrong_answers` in turn: every one fails with a hint. (A check compares the
+      answers it is given against the library on its own inputs, so where the probe runs does not matter;
+      one kernel serves both halves.)
+    """
     student = make_student.student_copy(path)
-    cells, expected = [], []
+    n_own = len(student.cells)
+    probes, expected = [], []
     for cell in student.cells:
-        cells.append(cell)
         if not is_check(cell):
             continue
         for ex_id, names in check_calls(cell.source):
@@ -136,13 +126,27 @@ def test_wrong_answers_fail_their_checks_in_the_student_copy(path):
                     "from scrppl.exercises import wrong_answers as _wrong_answers\n"
                     f"({', '.join(names)},) = _wrong_answers({ex_id!r})[{k}]"
                 )
-                cells.append(nbformat.v4.new_code_cell(bind))
-                cells.append(nbformat.v4.new_code_cell(f"check({ex_id!r}, {', '.join(names)})"))
-                expected.append((len(cells) - 1, ex_id, k))
-    student.cells = cells
+                probes.append(nbformat.v4.new_code_cell(bind))
+                probes.append(nbformat.v4.new_code_cell(f"check({ex_id!r}, {', '.join(names)})"))
+                expected.append((n_own + len(probes) - 1, ex_id, k))
+    student.cells = student.cells + probes
     nb = execute(student, allow_errors=True)
+    own = nb.cells[:n_own]
+    first_error = next(i for i, c in enumerate(own) if c.cell_type == "code" and errors(c))
+    first_check = next(i for i, c in enumerate(own) if is_check(c))
+    assert first_error == first_check, "the copy fails before its first check"
+    for cell in own:
+        if cell.cell_type != "code":
+            continue
+        if is_check(cell):
+            (err,) = errors(cell)
+            assert err.ename == "ExerciseNotAnswered", (cell.source, err.ename, err.evalue)
+            assert "not answered yet" in err.evalue
+        else:
+            assert not errors(cell), f"{path.name}: a non-check cell failed:\n{cell.source}"
     assert expected
     for index, ex_id, k in expected:
+        assert not errors(nb.cells[index - 1]), (ex_id, k, "binding the wrong answer failed")
         (err,) = errors(nb.cells[index])
         assert err.ename == "ExerciseFailed", (ex_id, k, err.ename, err.evalue)
         assert "not correct yet" in err.evalue

@@ -941,6 +941,7 @@ def kway_run_folder(rng, root, cats=("a", "b", "c")) -> list[str]:
     return cats
 
 
+@pytest.mark.slow  # the whole `scrppl kway` command: fits, trials, figures, report
 def test_kway_command_writes_models_trials_summary_and_figures(rng, tmp_path):
     from scrppl.cli import main
     from scrppl.report import write_report

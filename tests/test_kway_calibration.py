@@ -92,6 +92,7 @@ def test_experiment_reports_tempered_probabilities(rng):
         run_kway_experiment(jax.random.key(1), model, trials, temperature=0.0, **opts)
 
 
+@pytest.mark.slow  # the whole `scrppl kway` command
 @pytest.mark.parametrize("how", ["loo", "fit"])
 def test_kway_command_fits_the_temperature_on_the_fit_instances(rng, tmp_path, how):
     """`scrppl kway --calibration-trials N` fits T on fit-split trials (each object left out of the

@@ -124,6 +124,7 @@ def simulate_rings(rng, ce, cu, units, views):
     return CR.unit_stats(r, s, tau)
 
 
+@pytest.mark.slow  # an MCMC fit of 200 simulated rings
 def test_fit_recovers_the_correlations_it_was_given(rng):
     from scrppl.models.mcmc import SamplerConfig
 
@@ -479,6 +480,7 @@ def test_unrolled_inverse_and_cholesky_are_numpys(rng, lead):
     assert inv.shape == a.shape and logdet.shape == lead and chol.shape == a.shape
 
 
+@pytest.mark.slow  # the whole `scrppl kway` command twice, with an MCMC fit of the correlations
 def test_kway_command_with_the_correlated_filter(rng, tmp_path):
     """`scrppl kway --filter correlated` fits the correlations once, saves them beside the binary fits,
     reuses them on a second run, and records them in the summary."""

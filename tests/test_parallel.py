@@ -373,6 +373,7 @@ def test_fits_and_experiments_on_a_cluster_equal_those_in_process(responses, rem
 
 
 # -- the command line ------------------------------------------------------------------------------------
+@pytest.mark.slow  # `scrppl detect` three times, on a Dask cluster too
 def test_detect_command_gives_the_same_table_in_process_on_a_local_and_on_a_running_cluster(
     toy, cluster, tmp_path
 ):
