@@ -421,6 +421,87 @@ def test_oracle_greedy_refuses_another_planner_or_grid(folder):
         D.run_oracle_predictive_trials(k_run, meth.model, other, meth.trials)
 
 
+def beacon_world(n=24, seed=5, n_draws=1):
+    """A model whose target shows at one relative azimuth only (2: mean 4, noise sd 0.5, 0 elsewhere and
+    for the other class), and trials drawn from it: a planner told the true state knows where it shows."""
+    rng = np.random.default_rng(seed)
+    mu = np.zeros((n_draws, 2, A, 1, 1))
+    mu[:, 1, 2] = 4.0
+    model = ResponseModel(
+        jnp.asarray(mu, jnp.float32), jnp.full(mu.shape, 0.5, jnp.float32),
+        jnp.full((n_draws, 2), 0.2, jnp.float32),
+    )  # fmt: skip
+    label, pose = rng.integers(0, 2, n), rng.integers(0, A, n)
+    start = np.zeros((n, 3), np.int64)
+    start[:, 0] = rng.integers(0, A, n)
+    f = mu[0, label, :, 0, 0] + 0.5 * rng.normal(size=(n, A))  # object frame: f[t, a]
+    trials = Trials(
+        jnp.asarray(f[:, :, None, None], jnp.float32), jnp.ones((n, A, 1, 1), bool),
+        jnp.asarray(label), jnp.asarray(pose), jnp.asarray(start, jnp.int32),
+        jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32),
+    )  # fmt: skip
+    return model, trials
+
+
+@pytest.mark.parametrize("filter", ["naive_bayes", "instance"])
+@pytest.mark.parametrize("row", ["greedy_joint", pytest.param("confident", marks=pytest.mark.slow)])
+def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
+    """Told the class and the pose, eq. 5 and the confident planner look next at the robot azimuth
+    ``pose + 2`` where a present target shows (relative azimuth 2, by the view convention ``a = phi -
+    theta``), unless the trial started there; not told, the same trials do not all go there. The method's
+    filter is untouched: its first belief is the uniform prior's update with the start response."""
+    from scrppl import belief as B
+
+    model, trials = beacon_world()
+    config = D.decomposition_planners(64, confident=CONFIDENT)[row]
+    key = jax.random.key(2)
+    told = D.run_oracle_predictive_trials(
+        key, model, model, trials, config, filter=filter, known_state=True
+    )
+    blind = D.run_oracle_predictive_trials(key, model, model, trials, config, filter=filter)
+    label, pose, start = (np.asarray(x) for x in (trials.label, trials.pose, trials.start[:, 0]))
+    beacon = (pose + 2) % A
+    present = (label == 1) & (start != beacon)
+    assert present.sum() >= 5
+    first = np.asarray(told.views[:, 1, 0])
+    np.testing.assert_array_equal(first[present], beacon[present])
+    assert np.any(np.asarray(blind.views[:, 1, 0])[present] != beacon[present])
+    for i in range(3):
+        resp_r, _ = robot_frame(trials.responses[i], trials.available[i], trials.pose[i])
+        b = B.update(model, B.init_belief(filter, model), resp_r[start[i], 0, 0], int(start[i]))
+        np.testing.assert_allclose(
+            np.asarray(told.log_belief[i, 0]), np.asarray(B.joint_log_belief(b)), atol=1e-5
+        )
+
+
+def test_state_rows_run_without_oracle_models_and_refuse_labels_outside_the_classes(folder):
+    """``state_greedy`` needs no oracle: it is the runner with ``known_state`` and the method's own model,
+    for every method; a label the model has no class for is refused by name."""
+    methods, k_run = experiment_methods(folder)
+    ds = D.run_decomposition(
+        k_run, methods, rows=("random", "state_greedy", "clairvoyant"), **OPTIONS
+    )
+    assert ds["row"].values.tolist() == ["random", "state_greedy", "clairvoyant"]
+    config = D.decomposition_planners(OPTIONS["n_samples"])["greedy_joint"]
+    for name, meth in methods.items():
+        rec = D.run_oracle_predictive_trials(
+            k_run, meth.model, meth.model, meth.trials, config, filter=meth.filter, known_state=True
+        )
+        met = M.trial_metrics(
+            rec.log_belief, rec.responses, rec.observed, meth.trials.label, meth.trials.pose
+        )
+        np.testing.assert_array_equal(
+            ds["views_to_confidence"].sel({"method": name, "row": "state_greedy"}).values,
+            met["views_to_confidence"],
+        )
+    meth = methods["gaussian+naive_bayes"]
+    bad = meth.trials._replace(label=jnp.full_like(meth.trials.label, 2))
+    with pytest.raises(ValueError, match="labels must index the oracle model's 2 classes"):
+        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, bad, known_state=True)
+    with pytest.raises(ValueError, match="known_state must be True or False"):
+        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, meth.trials, known_state=1)
+
+
 def test_oracle_methods_must_be_the_methods_on_the_same_trials(folder):
     methods, k_run = experiment_methods(folder)
     table = load_response_table(folder / "responses.nc")

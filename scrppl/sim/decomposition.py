@@ -15,6 +15,12 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``rollout``           :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
                       follow, by sampled futures of the model (``K = 64``, each candidate first, then a
                       random order): not myopic
+``state_greedy``      eq. 5 (``greedy_joint``) *told the hidden state*: the responses it expects are drawn
+                      from the method's model at the trial's true class and pose (its filter, run beside
+                      from a prior on that one state), while the filter it scores, its entropy and the
+                      metric stay the method's (:func:`run_oracle_predictive_trials` with
+                      ``known_state``): what knowing the class and the pose would give the planner
+``state_confident``   the same for the confident planner: against ``confident``
 ``oracle_greedy``     eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
                       (below) while the filter, its entropy and the metric stay the method's
                       (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
@@ -129,11 +135,16 @@ __all__ = [
 
 #: The rows of the decomposition, top to bottom.
 ROWS = (
-    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "oracle_greedy",
-    "oracle_confident", "oracle_random", "oracle", "clairvoyant",
+    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "state_greedy",
+    "state_confident", "oracle_greedy", "oracle_confident", "oracle_random", "oracle", "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
 ORACLE_ROWS = ("oracle_greedy", "oracle_confident", "oracle_random", "oracle")
+#: The rows run by :func:`run_oracle_predictive_trials`, and the planner each is a variant of.
+_PREDICTIVE_ROWS = {
+    "state_greedy": "greedy_joint", "state_confident": "confident",
+    "oracle_greedy": "greedy_joint", "oracle_confident": "confident",
+}  # fmt: skip
 #: The rows that are planners (all but the clairvoyant bound).
 PLANNER_ROWS = ROWS[:-1]
 #: Draws of the two-step planner: ``M1`` first responses, each followed by the sampled planner with
@@ -163,6 +174,8 @@ _ROW_TITLES = {
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
     "rollout": "rollout planner (views to confidence, sampled futures)",
+    "state_greedy": "greedy, H(o, theta) (eq. 5), told the true class and pose",
+    "state_confident": "confident planner, told the true class and pose",
     "oracle_greedy": "greedy, H(o, theta) (eq. 5), the oracle model's predictive, the method's filter",
     "oracle_confident": "confident planner, the oracle model's predictive, the method's filter",
     "oracle_random": "random unseen view, oracle model (fitted on the test instances)",
@@ -319,8 +332,9 @@ def run_two_step_trials(
 
 
 def _oracle_trial(
-    key, model, oracle_model, responses, available, pose, start, *, filter, config, n_steps
-):
+    key, model, oracle_model, responses, available, pose, start, label, *, filter, config, n_steps,
+    known_state,
+):  # fmt: skip
     """One trial of a planner that draws its responses from ``oracle_model`` and scores ``model``'s filter.
 
     The trial of :func:`scrppl.sim.run_trial` (start view, then ``n_steps - 1`` steps, step ``t`` with
@@ -328,7 +342,8 @@ def _oracle_trial(
     step costs are scored, its belief recorded) and the oracle's (it gives the predictive the responses
     are drawn from), scored by :func:`scrppl.planning.predictive_expected_entropies` (eq. 5) or
     :func:`scrppl.confident.predictive_confident_scores` (the confident planner). Candidates are every
-    azimuth of the ring; no motion cost.
+    azimuth of the ring; no motion cost. With ``known_state`` the oracle's filter starts from a prior
+    that puts all its mass on the trial's class ``label`` and pose ``pose``.
     """
     resp_r, avail_r = robot_frame(responses, available, pose)
     start = jnp.asarray(start, jnp.int32)
@@ -336,7 +351,13 @@ def _oracle_trial(
     visited0 = jnp.zeros(avail_r.shape, bool)
     true = jnp.asarray(True)
     belief, visited, current, f0 = observe(init_belief(filter, model), visited0, start, start, true)
-    oracle, *_ = observe_oracle(init_belief(filter, oracle_model), visited0, start, start, true)
+    prior = None
+    if known_state:
+        n_o, n_a = oracle_model.mu.shape[1:3]
+        prior = jnp.zeros((n_o, n_a)).at[label, pose].set(1.0)
+    oracle, *_ = observe_oracle(
+        init_belief(filter, oracle_model, prior), visited0, start, start, true
+    )
     first = (current, f0, true, joint_log_belief(belief))
 
     def step(carry, t):
@@ -376,6 +397,7 @@ def run_oracle_predictive_trials(
     batch_size: int = 1,
     devices: int | None = None,
     progress: bool = False,
+    known_state: bool = False,
 ) -> TrialRecord:
     """:func:`scrppl.sim.run_trials` with a planner drawing its responses from ``oracle_model``'s predictive.
 
@@ -402,6 +424,12 @@ def run_oracle_predictive_trials(
         first-level responses), azimuth candidates, no motion cost; default the ``greedy_joint`` row's.
     filter, n_steps, chunk_size, batch_size, devices, progress
         As in :func:`~scrppl.sim.run_trials` (the same filter for both models).
+    known_state
+        Start the oracle's filter from the trial's true class and pose (``trials.label``,
+        ``trials.pose``) instead of the uniform prior: the planner is *told the hidden state* and draws
+        the responses it expects from ``oracle_model`` at that state (the ``state_greedy`` and
+        ``state_confident`` rows, with ``oracle_model`` the method's own). The method's filter still
+        starts from the uniform prior and alone decides when the trial is confident.
 
     Returns
     -------
@@ -423,17 +451,33 @@ def run_oracle_predictive_trials(
     check_response_model(oracle_model)
     check_same_grid(model, oracle_model, "oracle")
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
-    static = (("filter", filter), ("config", config), ("n_steps", n_steps))
+    if not isinstance(known_state, bool):
+        raise ValueError(f"known_state must be True or False, got {known_state!r}")
+    n_o = int(oracle_model.mu.shape[1])
+    label = np.asarray(trials.label)
+    if known_state and (label.min(initial=0) < 0 or label.max(initial=0) >= n_o):
+        raise ValueError(
+            f"known_state: trial labels must index the oracle model's {n_o} classes, got labels "
+            f"{sorted(set(label.tolist()))}"
+        )
+    static = (
+        ("filter", filter), ("config", config), ("n_steps", n_steps), ("known_state", known_state)
+    )  # fmt: skip
+    desc = f"{filter}/{'state' if known_state else 'oracle'}_{config.planner}"
     return _run_records(
         _oracle_trial, static, key, (model, oracle_model), trials,
         dict(chunk_size=chunk_size, batch_size=batch_size, devices=devices, progress=progress),
-        f"{filter}/oracle_{config.planner}",
+        desc, with_label=True,
     )  # fmt: skip
 
 
-def _run_records(trial_fn, static, key, shared, trials: Trials, options, desc) -> TrialRecord:
+def _run_records(
+    trial_fn, static, key, shared, trials: Trials, options, desc, with_label: bool = False
+) -> TrialRecord:
     """:func:`scrppl.sim.runner.run_chunked` over the trials' responses, as a :class:`TrialRecord`."""
     per_trial = (trials.responses, trials.available, trials.pose, trials.start)
+    if with_label:
+        per_trial += (trials.label,)
     return TrialRecord(*run_chunked(trial_fn, static, key, shared, per_trial, desc=desc, **options))
 
 
@@ -518,18 +562,19 @@ def run_decomposition(
     seconds = np.zeros(len(rows))
     for j, row in enumerate(tqdm(rows, desc="decomposition", disable=not progress)):
         t0 = time.perf_counter()
-        if row in ("two_step", "oracle_greedy", "oracle_confident", "clairvoyant"):
+        if row in ("two_step", *_PREDICTIVE_ROWS, "clairvoyant"):
             for i, name in enumerate(names):
                 meth = methods[name]
                 if row == "clairvoyant":
                     views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
                     continue
-                if row in ("oracle_greedy", "oracle_confident"):
+                if row in _PREDICTIVE_ROWS:
+                    state = row.startswith("state_")
                     rec = run_oracle_predictive_trials(
-                        key, meth.model, oracle_methods[name].model, meth.trials,
-                        configs["greedy_joint" if row == "oracle_greedy" else "confident"],
-                        filter=meth.filter, chunk_size=chunk_size, devices=devices,
-                        progress=progress,
+                        key, meth.model, (meth if state else oracle_methods[name]).model,
+                        meth.trials, configs[_PREDICTIVE_ROWS[row]], filter=meth.filter,
+                        chunk_size=chunk_size, devices=devices, progress=progress,
+                        known_state=state,
                     )  # fmt: skip
                 else:
                     rec = run_two_step_trials(
