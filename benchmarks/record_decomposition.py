@@ -54,6 +54,17 @@ folder per target holding the same run's fits and the oracle fits above), kept a
         --rows random,confident,oracle_confident,clairvoyant --oracle
     python benchmarks/record_decomposition.py --oracle-confident-from RESULTS_bicycle ... --model "..."
 
+Eq. 5 and the confident planner *told the true class and pose* (rows ``state_greedy`` and
+``state_confident``: their predictive from the method's own model at the trial's state), kept under those
+names::
+
+    scrppl decompose --profile full --out RESULTS --trials 10000 \\
+        --rows random,greedy_joint,state_greedy,clairvoyant
+    scrppl decompose --profile full --out RESULTS_T --targets T --trials 2000 \\
+        --rows random,confident,state_confident,clairvoyant
+    python benchmarks/record_decomposition.py --state-greedy-from RESULTS \\
+        --state-confident-from RESULTS_bicycle ... --model "..."
+
 Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
 [--filter-world-from DIR ...] [--rollout-from DIR ...] [--rollout-filter-world-from DIR ...]`` (``--world-from``: the folder of ``decomposition-model-world.json`` when
 it is not ``RESULTS``; ``--oracle-from``: a folder whose ``decomposition.json`` has the oracle rows, kept
@@ -115,6 +126,8 @@ def main(argv=None) -> None:
         ("--rollout-filter-world-from", "decomposition-filter-world.json with the rollout row"),
         ("--oracle-greedy-from", "decomposition.json with the oracle_greedy row"),
         ("--oracle-confident-from", "decomposition.json with the oracle_confident row"),
+        ("--state-greedy-from", "decomposition.json with the state_greedy row"),
+        ("--state-confident-from", "decomposition.json with the state_confident row"),
     ):
         ap.add_argument(flag, type=Path, nargs="+", default=None, help=f"folders of {what}")
     ap.add_argument("--world-from", type=Path, default=None,
@@ -131,7 +144,7 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--model",
         default=None,
-        help="the model of the --filter-world-from or --oracle-greedy-from runs, in words",
+        help="the model of the --filter-world-from, --oracle-*-from or --state-*-from runs, in words",
     )
     ap.add_argument("--out", type=Path, default=RECORD)
     args = ap.parse_args(argv)
@@ -145,12 +158,14 @@ def main(argv=None) -> None:
             args.rollout_filter_world_from,
             args.oracle_greedy_from,
             args.oracle_confident_from,
+            args.state_greedy_from,
+            args.state_confident_from,
         )
         if all(p is None for p in parts) or "real" not in old:
             raise SystemExit(
                 "give a results folder, or --filter-world-from, --rollout-from, "
-                "--rollout-filter-world-from, --oracle-greedy-from or --oracle-confident-from with an "
-                "existing record to add to"
+                "--rollout-filter-world-from, --oracle-greedy-from, --oracle-confident-from, "
+                "--state-greedy-from or --state-confident-from with an existing record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
     else:
@@ -194,11 +209,14 @@ def main(argv=None) -> None:
             raise SystemExit(f"{dirs[0] / name}: not the world {part} expects")
         run["machine"] = machine_description()
         rollout[part] = run
-    oracle_rows = {k: old.get(k) for k in ("oracle_greedy", "oracle_confident")}
-    for row, dirs in (
-        ("oracle_greedy", args.oracle_greedy_from),
-        ("oracle_confident", args.oracle_confident_from),
-    ):
+    given = {
+        "oracle_greedy": args.oracle_greedy_from,
+        "oracle_confident": args.oracle_confident_from,
+        "state_greedy": args.state_greedy_from,
+        "state_confident": args.state_confident_from,
+    }
+    oracle_rows = {k: old.get(k) for k in given}
+    for row, dirs in given.items():
         if dirs is None:
             continue
         run = merge_targets([d / "decomposition.json" for d in dirs])

@@ -926,6 +926,19 @@ def test_record_keeps_the_decomposition_and_names_a_bad_file(ladder, tmp_path):
     assert sixth["oracle_greedy"] == fifth["oracle_greedy"]
     with pytest.raises(SystemExit, match="has no oracle_confident row"):
         mod.main(["--oracle-confident-from", str(tmp_path / "og"), "--out", str(out)])
+    # the state rows: their own keys, the oracle rows kept
+    (tmp_path / "sg").mkdir()
+    sg = {"seed": SEED, "settings": {"trials": TRIALS, "rows": ["random", "state_greedy"]}}
+    (tmp_path / "sg" / "decomposition.json").write_text(
+        json.dumps(dict(sg, targets={"car": entry}))
+    )
+    mod.main(["--state-greedy-from", str(tmp_path / "sg"), "--out", str(out)])
+    seventh = json.loads(out.read_text())
+    assert seventh["state_greedy"]["targets"] == {"car": entry}
+    assert seventh["oracle_confident"] == sixth["oracle_confident"]
+    assert "state_confident" not in seventh
+    with pytest.raises(SystemExit, match="has no state_confident row"):
+        mod.main(["--state-confident-from", str(tmp_path / "sg"), "--out", str(out)])
     with pytest.raises(SystemExit, match="has no oracle rows"):
         mod.main([str(tmp_path), "--oracle-from", str(tmp_path), "--out", str(out)])
     with pytest.raises(SystemExit, match="nowhere.*decomposition.json: not found"):
