@@ -55,14 +55,16 @@ folder per target holding the same run's fits and the oracle fits above), kept a
     python benchmarks/record_decomposition.py --oracle-confident-from RESULTS_bicycle ... --model "..."
 
 Eq. 5 and the confident planner *told the true class and pose* (rows ``state_greedy`` and
-``state_confident``: their predictive from the method's own model at the trial's state), kept under those
-names::
+``state_confident``: their predictive from the method's own model at the trial's state), and eq. 5 told
+the pose only (``pose_greedy``), kept under those names::
 
     scrppl decompose --profile full --out RESULTS --trials 10000 \\
         --rows random,greedy_joint,state_greedy,clairvoyant
+    scrppl decompose --profile full --out POSE --trials 10000 \\
+        --rows random,greedy_joint,pose_greedy,clairvoyant
     scrppl decompose --profile full --out RESULTS_T --targets T --trials 2000 \\
         --rows random,confident,state_confident,clairvoyant
-    python benchmarks/record_decomposition.py --state-greedy-from RESULTS \\
+    python benchmarks/record_decomposition.py --state-greedy-from RESULTS --pose-greedy-from POSE \\
         --state-confident-from RESULTS_bicycle ... --model "..."
 
 Run: ``python benchmarks/record_decomposition.py [RESULTS] [--world-from DIR] [--oracle-from DIR]
@@ -126,6 +128,7 @@ def main(argv=None) -> None:
         ("--rollout-filter-world-from", "decomposition-filter-world.json with the rollout row"),
         ("--oracle-greedy-from", "decomposition.json with the oracle_greedy row"),
         ("--oracle-confident-from", "decomposition.json with the oracle_confident row"),
+        ("--pose-greedy-from", "decomposition.json with the pose_greedy row"),
         ("--state-greedy-from", "decomposition.json with the state_greedy row"),
         ("--state-confident-from", "decomposition.json with the state_confident row"),
     ):
@@ -158,6 +161,7 @@ def main(argv=None) -> None:
             args.rollout_filter_world_from,
             args.oracle_greedy_from,
             args.oracle_confident_from,
+            args.pose_greedy_from,
             args.state_greedy_from,
             args.state_confident_from,
         )
@@ -165,7 +169,8 @@ def main(argv=None) -> None:
             raise SystemExit(
                 "give a results folder, or --filter-world-from, --rollout-from, "
                 "--rollout-filter-world-from, --oracle-greedy-from, --oracle-confident-from, "
-                "--state-greedy-from or --state-confident-from with an existing record to add to"
+                "--pose-greedy-from, --state-greedy-from or --state-confident-from with an existing "
+                "record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
     else:
@@ -212,6 +217,7 @@ def main(argv=None) -> None:
     given = {
         "oracle_greedy": args.oracle_greedy_from,
         "oracle_confident": args.oracle_confident_from,
+        "pose_greedy": args.pose_greedy_from,
         "state_greedy": args.state_greedy_from,
         "state_confident": args.state_confident_from,
     }

@@ -448,15 +448,16 @@ def beacon_world(n=24, seed=5, n_draws=1):
 def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
     """Told the class and the pose, eq. 5 and the confident planner look next at the robot azimuth
     ``pose + 2`` where a present target shows (relative azimuth 2, by the view convention ``a = phi -
-    theta``), unless the trial started there; not told, the same trials do not all go there. The method's
-    filter is untouched: its first belief is the uniform prior's update with the start response."""
+    theta``), unless the trial started there; not told, the same trials do not all go there; told the
+    pose only, eq. 5 goes there for either class. The method's filter is untouched: its first belief is
+    the uniform prior's update with the start response."""
     from scrppl import belief as B
 
     model, trials = beacon_world()
     config = D.decomposition_planners(64, confident=CONFIDENT)[row]
     key = jax.random.key(2)
     told = D.run_oracle_predictive_trials(
-        key, model, model, trials, config, filter=filter, known_state=True
+        key, model, model, trials, config, filter=filter, known_state="state"
     )
     blind = D.run_oracle_predictive_trials(key, model, model, trials, config, filter=filter)
     label, pose, start = (np.asarray(x) for x in (trials.label, trials.pose, trials.start[:, 0]))
@@ -466,6 +467,14 @@ def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
     first = np.asarray(told.views[:, 1, 0])
     np.testing.assert_array_equal(first[present], beacon[present])
     assert np.any(np.asarray(blind.views[:, 1, 0])[present] != beacon[present])
+    if row == "greedy_joint":
+        # told the pose only, the view that tells a present target from an absent one is the same
+        # for every trial: pose + 2 goes first whatever the class
+        pose_only = D.run_oracle_predictive_trials(
+            key, model, model, trials, config, filter=filter, known_state="pose"
+        )
+        away = start != beacon
+        np.testing.assert_array_equal(np.asarray(pose_only.views[away, 1, 0]), beacon[away])
     for i in range(3):
         resp_r, _ = robot_frame(trials.responses[i], trials.available[i], trials.pose[i])
         b = B.update(model, B.init_belief(filter, model), resp_r[start[i], 0, 0], int(start[i]))
@@ -475,31 +484,33 @@ def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
 
 
 def test_state_rows_run_without_oracle_models_and_refuse_labels_outside_the_classes(folder):
-    """``state_greedy`` needs no oracle: it is the runner with ``known_state`` and the method's own model,
-    for every method; a label the model has no class for is refused by name."""
+    """``pose_greedy`` and ``state_greedy`` need no oracle: they are the runner with ``known_state``
+    ``"pose"`` and ``"state"`` and the method's own model, for every method; a label the model has no
+    class for is refused by name."""
     methods, k_run = experiment_methods(folder)
-    ds = D.run_decomposition(
-        k_run, methods, rows=("random", "state_greedy", "clairvoyant"), **OPTIONS
-    )
-    assert ds["row"].values.tolist() == ["random", "state_greedy", "clairvoyant"]
+    rows = ("random", "pose_greedy", "state_greedy", "clairvoyant")
+    ds = D.run_decomposition(k_run, methods, rows=rows, **OPTIONS)
+    assert ds["row"].values.tolist() == list(rows)
     config = D.decomposition_planners(OPTIONS["n_samples"])["greedy_joint"]
     for name, meth in methods.items():
-        rec = D.run_oracle_predictive_trials(
-            k_run, meth.model, meth.model, meth.trials, config, filter=meth.filter, known_state=True
-        )
-        met = M.trial_metrics(
-            rec.log_belief, rec.responses, rec.observed, meth.trials.label, meth.trials.pose
-        )
-        np.testing.assert_array_equal(
-            ds["views_to_confidence"].sel({"method": name, "row": "state_greedy"}).values,
-            met["views_to_confidence"],
-        )
+        for row, told in (("pose_greedy", "pose"), ("state_greedy", "state")):
+            rec = D.run_oracle_predictive_trials(
+                k_run, meth.model, meth.model, meth.trials, config, filter=meth.filter,
+                known_state=told,
+            )  # fmt: skip
+            met = M.trial_metrics(
+                rec.log_belief, rec.responses, rec.observed, meth.trials.label, meth.trials.pose
+            )
+            np.testing.assert_array_equal(
+                ds["views_to_confidence"].sel({"method": name, "row": row}).values,
+                met["views_to_confidence"],
+            )
     meth = methods["gaussian+naive_bayes"]
     bad = meth.trials._replace(label=jnp.full_like(meth.trials.label, 2))
     with pytest.raises(ValueError, match="labels must index the oracle model's 2 classes"):
-        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, bad, known_state=True)
-    with pytest.raises(ValueError, match="known_state must be True or False"):
-        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, meth.trials, known_state=1)
+        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, bad, known_state="state")
+    with pytest.raises(ValueError, match="known_state must be one of"):
+        D.run_oracle_predictive_trials(k_run, meth.model, meth.model, meth.trials, known_state=True)
 
 
 def test_oracle_methods_must_be_the_methods_on_the_same_trials(folder):

@@ -21,6 +21,8 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
                       metric stay the method's (:func:`run_oracle_predictive_trials` with
                       ``known_state``): what knowing the class and the pose would give the planner
 ``state_confident``   the same for the confident planner: against ``confident``
+``pose_greedy``       eq. 5 told the pose only (the class left uniform at the true pose): how much of
+                      ``state_greedy``'s gain a pose estimate alone would bring
 ``oracle_greedy``     eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
                       (below) while the filter, its entropy and the metric stay the method's
                       (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
@@ -105,6 +107,7 @@ from scrppl.sim.study import DEFAULT_KINDS, load_methods
 
 __all__ = [
     "ROWS",
+    "KNOWN_STATES",
     "ORACLE_ROWS",
     "PLANNER_ROWS",
     "DEFAULT_LOOKAHEAD_SAMPLES",
@@ -135,14 +138,17 @@ __all__ = [
 
 #: The rows of the decomposition, top to bottom.
 ROWS = (
-    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "state_greedy",
-    "state_confident", "oracle_greedy", "oracle_confident", "oracle_random", "oracle", "clairvoyant",
+    "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "pose_greedy",
+    "state_greedy", "state_confident", "oracle_greedy", "oracle_confident", "oracle_random", "oracle",
+    "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
 ORACLE_ROWS = ("oracle_greedy", "oracle_confident", "oracle_random", "oracle")
+#: What :func:`run_oracle_predictive_trials` can tell the planner: nothing, the class and pose, the pose.
+KNOWN_STATES = (None, "state", "pose")
 #: The rows run by :func:`run_oracle_predictive_trials`, and the planner each is a variant of.
 _PREDICTIVE_ROWS = {
-    "state_greedy": "greedy_joint", "state_confident": "confident",
+    "pose_greedy": "greedy_joint", "state_greedy": "greedy_joint", "state_confident": "confident",
     "oracle_greedy": "greedy_joint", "oracle_confident": "confident",
 }  # fmt: skip
 #: The rows that are planners (all but the clairvoyant bound).
@@ -174,6 +180,7 @@ _ROW_TITLES = {
     "two_step": "two-step lookahead, H(o)",
     "confident": "confident planner (views to confidence)",
     "rollout": "rollout planner (views to confidence, sampled futures)",
+    "pose_greedy": "greedy, H(o, theta) (eq. 5), told the true pose",
     "state_greedy": "greedy, H(o, theta) (eq. 5), told the true class and pose",
     "state_confident": "confident planner, told the true class and pose",
     "oracle_greedy": "greedy, H(o, theta) (eq. 5), the oracle model's predictive, the method's filter",
@@ -343,7 +350,8 @@ def _oracle_trial(
     are drawn from), scored by :func:`scrppl.planning.predictive_expected_entropies` (eq. 5) or
     :func:`scrppl.confident.predictive_confident_scores` (the confident planner). Candidates are every
     azimuth of the ring; no motion cost. With ``known_state`` the oracle's filter starts from a prior
-    that puts all its mass on the trial's class ``label`` and pose ``pose``.
+    that puts all its mass on the trial's class ``label`` and pose ``pose`` (``"state"``) or spreads it
+    evenly over the classes at that pose (``"pose"``).
     """
     resp_r, avail_r = robot_frame(responses, available, pose)
     start = jnp.asarray(start, jnp.int32)
@@ -352,9 +360,10 @@ def _oracle_trial(
     true = jnp.asarray(True)
     belief, visited, current, f0 = observe(init_belief(filter, model), visited0, start, start, true)
     prior = None
-    if known_state:
+    if known_state is not None:
         n_o, n_a = oracle_model.mu.shape[1:3]
-        prior = jnp.zeros((n_o, n_a)).at[label, pose].set(1.0)
+        at = jnp.arange(n_o) == label if known_state == "state" else jnp.ones(n_o, bool)
+        prior = jnp.zeros((n_o, n_a)).at[:, pose].set(at.astype(jnp.float32))
     oracle, *_ = observe_oracle(
         init_belief(filter, oracle_model, prior), visited0, start, start, true
     )
@@ -397,7 +406,7 @@ def run_oracle_predictive_trials(
     batch_size: int = 1,
     devices: int | None = None,
     progress: bool = False,
-    known_state: bool = False,
+    known_state: str | None = None,
 ) -> TrialRecord:
     """:func:`scrppl.sim.run_trials` with a planner drawing its responses from ``oracle_model``'s predictive.
 
@@ -425,11 +434,13 @@ def run_oracle_predictive_trials(
     filter, n_steps, chunk_size, batch_size, devices, progress
         As in :func:`~scrppl.sim.run_trials` (the same filter for both models).
     known_state
-        Start the oracle's filter from the trial's true class and pose (``trials.label``,
-        ``trials.pose``) instead of the uniform prior: the planner is *told the hidden state* and draws
-        the responses it expects from ``oracle_model`` at that state (the ``state_greedy`` and
-        ``state_confident`` rows, with ``oracle_model`` the method's own). The method's filter still
-        starts from the uniform prior and alone decides when the trial is confident.
+        ``"state"``: start the oracle's filter from the trial's true class and pose (``trials.label``,
+        ``trials.pose``) instead of the uniform prior, so the planner is *told the hidden state* and
+        draws the responses it expects from ``oracle_model`` at that state (the ``state_greedy`` and
+        ``state_confident`` rows, with ``oracle_model`` the method's own). ``"pose"``: told the pose
+        only, every class equally likely there (``pose_greedy``). ``None`` (default): the uniform
+        prior. The method's filter always starts from the uniform prior and alone decides when the
+        trial is confident.
 
     Returns
     -------
@@ -451,11 +462,11 @@ def run_oracle_predictive_trials(
     check_response_model(oracle_model)
     check_same_grid(model, oracle_model, "oracle")
     n_steps = check_trial_inputs(model, trials, config, filter, n_steps)
-    if not isinstance(known_state, bool):
-        raise ValueError(f"known_state must be True or False, got {known_state!r}")
+    if known_state not in KNOWN_STATES:
+        raise ValueError(f"known_state must be one of {KNOWN_STATES}, got {known_state!r}")
     n_o = int(oracle_model.mu.shape[1])
     label = np.asarray(trials.label)
-    if known_state and (label.min(initial=0) < 0 or label.max(initial=0) >= n_o):
+    if known_state == "state" and (label.min(initial=0) < 0 or label.max(initial=0) >= n_o):
         raise ValueError(
             f"known_state: trial labels must index the oracle model's {n_o} classes, got labels "
             f"{sorted(set(label.tolist()))}"
@@ -463,7 +474,7 @@ def run_oracle_predictive_trials(
     static = (
         ("filter", filter), ("config", config), ("n_steps", n_steps), ("known_state", known_state)
     )  # fmt: skip
-    desc = f"{filter}/{'state' if known_state else 'oracle'}_{config.planner}"
+    desc = f"{filter}/{known_state or 'oracle'}_{config.planner}"
     return _run_records(
         _oracle_trial, static, key, (model, oracle_model), trials,
         dict(chunk_size=chunk_size, batch_size=batch_size, devices=devices, progress=progress),
@@ -569,12 +580,12 @@ def run_decomposition(
                     views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
                     continue
                 if row in _PREDICTIVE_ROWS:
-                    state = row.startswith("state_")
+                    told = {"pose_greedy": "pose"}.get(row, "state" if "state" in row else None)
                     rec = run_oracle_predictive_trials(
-                        key, meth.model, (meth if state else oracle_methods[name]).model,
+                        key, meth.model, (oracle_methods[name] if told is None else meth).model,
                         meth.trials, configs[_PREDICTIVE_ROWS[row]], filter=meth.filter,
                         chunk_size=chunk_size, devices=devices, progress=progress,
-                        known_state=state,
+                        known_state=told,
                     )  # fmt: skip
                 else:
                     rec = run_two_step_trials(
