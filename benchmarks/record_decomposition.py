@@ -56,7 +56,8 @@ folder per target holding the same run's fits and the oracle fits above), kept a
 
 Eq. 5 and the confident planner *told the true class and pose* (rows ``state_greedy`` and
 ``state_confident``: their predictive from the method's own model at the trial's state), and eq. 5 told
-the pose only (``pose_greedy``), kept under those names::
+the pose only (``pose_greedy``; ``pose_confident`` the same way as ``state_confident``), kept under those
+names::
 
     scrppl decompose --profile full --out RESULTS --trials 10000 \\
         --rows random,greedy_joint,state_greedy,clairvoyant
@@ -129,6 +130,7 @@ def main(argv=None) -> None:
         ("--oracle-greedy-from", "decomposition.json with the oracle_greedy row"),
         ("--oracle-confident-from", "decomposition.json with the oracle_confident row"),
         ("--pose-greedy-from", "decomposition.json with the pose_greedy row"),
+        ("--pose-confident-from", "decomposition.json with the pose_confident row"),
         ("--state-greedy-from", "decomposition.json with the state_greedy row"),
         ("--state-confident-from", "decomposition.json with the state_confident row"),
     ):
@@ -162,6 +164,7 @@ def main(argv=None) -> None:
             args.oracle_greedy_from,
             args.oracle_confident_from,
             args.pose_greedy_from,
+            args.pose_confident_from,
             args.state_greedy_from,
             args.state_confident_from,
         )
@@ -169,7 +172,8 @@ def main(argv=None) -> None:
             raise SystemExit(
                 "give a results folder, or --filter-world-from, --rollout-from, "
                 "--rollout-filter-world-from, --oracle-greedy-from, --oracle-confident-from, "
-                "--pose-greedy-from, --state-greedy-from or --state-confident-from with an existing "
+                "--pose-greedy-from, --pose-confident-from, --state-greedy-from or "
+                "--state-confident-from with an existing "
                 "record to add to"
             )
         real, world, oracle = old["real"], old.get("model_world"), old.get("oracle")
@@ -218,6 +222,7 @@ def main(argv=None) -> None:
         "oracle_greedy": args.oracle_greedy_from,
         "oracle_confident": args.oracle_confident_from,
         "pose_greedy": args.pose_greedy_from,
+        "pose_confident": args.pose_confident_from,
         "state_greedy": args.state_greedy_from,
         "state_confident": args.state_confident_from,
     }

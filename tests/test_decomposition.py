@@ -449,7 +449,7 @@ def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
     """Told the class and the pose, eq. 5 and the confident planner look next at the robot azimuth
     ``pose + 2`` where a present target shows (relative azimuth 2, by the view convention ``a = phi -
     theta``), unless the trial started there; not told, the same trials do not all go there; told the
-    pose only, eq. 5 goes there for either class. The method's filter is untouched: its first belief is
+    pose only, they go there for either class. The method's filter is untouched: its first belief is
     the uniform prior's update with the start response."""
     from scrppl import belief as B
 
@@ -467,14 +467,13 @@ def test_state_rows_look_first_where_the_true_state_shows_itself(filter, row):
     first = np.asarray(told.views[:, 1, 0])
     np.testing.assert_array_equal(first[present], beacon[present])
     assert np.any(np.asarray(blind.views[:, 1, 0])[present] != beacon[present])
-    if row == "greedy_joint":
-        # told the pose only, the view that tells a present target from an absent one is the same
-        # for every trial: pose + 2 goes first whatever the class
-        pose_only = D.run_oracle_predictive_trials(
-            key, model, model, trials, config, filter=filter, known_state="pose"
-        )
-        away = start != beacon
-        np.testing.assert_array_equal(np.asarray(pose_only.views[away, 1, 0]), beacon[away])
+    # told the pose only, the view that tells a present target from an absent one is the same for
+    # every trial: pose + 2 goes first whatever the class
+    pose_only = D.run_oracle_predictive_trials(
+        key, model, model, trials, config, filter=filter, known_state="pose"
+    )
+    away = start != beacon
+    np.testing.assert_array_equal(np.asarray(pose_only.views[away, 1, 0]), beacon[away])
     for i in range(3):
         resp_r, _ = robot_frame(trials.responses[i], trials.available[i], trials.pose[i])
         b = B.update(model, B.init_belief(filter, model), resp_r[start[i], 0, 0], int(start[i]))

@@ -12,12 +12,12 @@ start views, responses and keys in every row), every method of the experiment wi
 * ``confident``     the planner for views to confidence (``scrppl.confident``, M = 32);
 * ``rollout``       the same metric over all the views that follow, by sampled futures (K = 64; about
                     65 ms a decision with the instance-aware filter: a few hundred ``--trials``);
-* ``pose_greedy``, ``state_greedy``, ``state_confident``
-                    eq. 5 *told the true pose*, and eq. 5 and the confident planner *told the true
-                    class and pose*: the responses they expect come from the method's model at what
-                    they are told, the filter and the metric stay the method's (what a planner would
-                    gain from knowing the hidden state; ``state_confident`` about 0.2 s a decision, so
-                    a few thousand ``--trials``);
+* ``pose_greedy``, ``pose_confident``, ``state_greedy``, ``state_confident``
+                    eq. 5 and the confident planner *told the true pose*, and *told the true class
+                    and pose*: the responses they expect come from the method's model at what they
+                    are told, the filter and the metric stay the method's (what a planner would gain
+                    from knowing the hidden state; the confident ones about 0.2 s a decision, so a
+                    few thousand ``--trials``);
 * ``clairvoyant``   the fewest views had every response been known (``scrppl.sim.bounds``).
 
 With ``--oracle`` four more rows use models fitted on the held-out (test) instances themselves (into

@@ -23,6 +23,7 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``state_confident``   the same for the confident planner: against ``confident``
 ``pose_greedy``       eq. 5 told the pose only (the class left uniform at the true pose): how much of
                       ``state_greedy``'s gain a pose estimate alone would bring
+``pose_confident``    the same for the confident planner
 ``oracle_greedy``     eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
                       (below) while the filter, its entropy and the metric stay the method's
                       (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
@@ -139,8 +140,8 @@ __all__ = [
 #: The rows of the decomposition, top to bottom.
 ROWS = (
     "random", "greedy_joint", "greedy_class", "two_step", "confident", "rollout", "pose_greedy",
-    "state_greedy", "state_confident", "oracle_greedy", "oracle_confident", "oracle_random", "oracle",
-    "clairvoyant",
+    "pose_confident", "state_greedy", "state_confident", "oracle_greedy", "oracle_confident",
+    "oracle_random", "oracle", "clairvoyant",
 )  # fmt: skip
 #: The rows run with the oracle models (only when they are given).
 ORACLE_ROWS = ("oracle_greedy", "oracle_confident", "oracle_random", "oracle")
@@ -148,7 +149,8 @@ ORACLE_ROWS = ("oracle_greedy", "oracle_confident", "oracle_random", "oracle")
 KNOWN_STATES = (None, "state", "pose")
 #: The rows run by :func:`run_oracle_predictive_trials`, and the planner each is a variant of.
 _PREDICTIVE_ROWS = {
-    "pose_greedy": "greedy_joint", "state_greedy": "greedy_joint", "state_confident": "confident",
+    "pose_greedy": "greedy_joint", "pose_confident": "confident",
+    "state_greedy": "greedy_joint", "state_confident": "confident",
     "oracle_greedy": "greedy_joint", "oracle_confident": "confident",
 }  # fmt: skip
 #: The rows that are planners (all but the clairvoyant bound).
@@ -181,6 +183,7 @@ _ROW_TITLES = {
     "confident": "confident planner (views to confidence)",
     "rollout": "rollout planner (views to confidence, sampled futures)",
     "pose_greedy": "greedy, H(o, theta) (eq. 5), told the true pose",
+    "pose_confident": "confident planner, told the true pose",
     "state_greedy": "greedy, H(o, theta) (eq. 5), told the true class and pose",
     "state_confident": "confident planner, told the true class and pose",
     "oracle_greedy": "greedy, H(o, theta) (eq. 5), the oracle model's predictive, the method's filter",
@@ -438,7 +441,8 @@ def run_oracle_predictive_trials(
         ``trials.pose``) instead of the uniform prior, so the planner is *told the hidden state* and
         draws the responses it expects from ``oracle_model`` at that state (the ``state_greedy`` and
         ``state_confident`` rows, with ``oracle_model`` the method's own). ``"pose"``: told the pose
-        only, every class equally likely there (``pose_greedy``). ``None`` (default): the uniform
+        only, every class equally likely there (``pose_greedy``, ``pose_confident``). ``None``
+        (default): the uniform
         prior. The method's filter always starts from the uniform prior and alone decides when the
         trial is confident.
 
@@ -580,7 +584,7 @@ def run_decomposition(
                     views[i, j] = clairvoyant_bound(meth.model, meth.trials, filter=meth.filter)
                     continue
                 if row in _PREDICTIVE_ROWS:
-                    told = {"pose_greedy": "pose"}.get(row, "state" if "state" in row else None)
+                    told = row.split("_")[0] if row.startswith(("pose_", "state_")) else None
                     rec = run_oracle_predictive_trials(
                         key, meth.model, (oracle_methods[name] if told is None else meth).model,
                         meth.trials, configs[_PREDICTIVE_ROWS[row]], filter=meth.filter,
