@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SCRIPT = r"""
@@ -44,6 +46,7 @@ def _run(tmp_path, **extra):
     return out.stdout, out.stderr
 
 
+@pytest.mark.slow  # four fresh Python processes, each compiling the README's example
 def test_cached_programs_give_the_same_bytes_and_a_corrupt_cache_is_recompiled_silently(tmp_path):
     first, _ = _run(tmp_path)
     assert first.startswith("cache True")

@@ -318,6 +318,7 @@ def test_decompose_after_simulate_on_the_example_models(tmp_path):
     assert "hierarchical+instance" in (out / "decomposition.md").read_text()
 
 
+@pytest.mark.slow  # seven rows of the ladder, three methods
 def test_oracle_row_is_the_confident_planner_with_the_oracle_models(folder):
     """With the run's own models as the 'oracle' the oracle rows are the random and confident rows,
     trial by trial: they change the model and nothing else."""

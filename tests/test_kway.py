@@ -670,6 +670,7 @@ def test_experiment_on_a_separable_table(rng):
         run_kway_experiment(jax.random.key(1), KwayModel(*(x[:2] for x in model)), trials)
 
 
+@pytest.mark.slow  # the K-way experiment three times
 def test_experiment_chunks_on_threads_give_the_same_trials(rng, monkeypatch):
     """Chunks of trials run on several threads: the same dataset as one chunk or one thread."""
     import scrppl.kway.experiment as KE
