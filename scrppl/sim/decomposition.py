@@ -15,15 +15,16 @@ i), t)``, as in :func:`scrppl.sim.run_trials`) -- each row changing one thing fr
 ``rollout``           :data:`scrppl.confident.ROLLOUT_PLANNER`: the same metric over *all* the views that
                       follow, by sampled futures of the model (``K = 64``, each candidate first, then a
                       random order): not myopic
+``pose_greedy``       eq. 5 (``greedy_joint``) told the pose only: ``state_greedy`` below with the classes
+                      left equally likely at the true pose; how much of ``state_greedy``'s gain a pose
+                      estimate alone would bring
+``pose_confident``    the same for the confident planner: against ``confident``
 ``state_greedy``      eq. 5 (``greedy_joint``) *told the hidden state*: the responses it expects are drawn
                       from the method's model at the trial's true class and pose (its filter, run beside
                       from a prior on that one state), while the filter it scores, its entropy and the
                       metric stay the method's (:func:`run_oracle_predictive_trials` with
                       ``known_state``): what knowing the class and the pose would give the planner
 ``state_confident``   the same for the confident planner: against ``confident``
-``pose_greedy``       eq. 5 told the pose only (the class left uniform at the true pose): how much of
-                      ``state_greedy``'s gain a pose estimate alone would bring
-``pose_confident``    the same for the confident planner
 ``oracle_greedy``     eq. 5 (``greedy_joint``) with the responses it expects drawn from an *oracle model*
                       (below) while the filter, its entropy and the metric stay the method's
                       (:func:`scrppl.planning.predictive_expected_entropies`): against ``greedy_joint``,
@@ -442,9 +443,8 @@ def run_oracle_predictive_trials(
         draws the responses it expects from ``oracle_model`` at that state (the ``state_greedy`` and
         ``state_confident`` rows, with ``oracle_model`` the method's own). ``"pose"``: told the pose
         only, every class equally likely there (``pose_greedy``, ``pose_confident``). ``None``
-        (default): the uniform
-        prior. The method's filter always starts from the uniform prior and alone decides when the
-        trial is confident.
+        (default): the uniform prior. The method's filter always starts from the uniform prior and
+        alone decides when the trial is confident.
 
     Returns
     -------
