@@ -72,8 +72,8 @@ def read_page(path: Path, config=None):
 class _Stop:
     """SIGUSR1 handling: stop now, unless a page is being written to the cache (then right after it).
 
-    Stopping kills this process's kernels (each runs in its own session, so they would outlive it) and
-    exits with status 143; a page whose execution is cut short is never cached.
+    Stopping kills this process's kernels (each runs in its own session, so they would outlive it), waits
+    until they are gone, and exits with status 143; a page whose execution is cut short is never cached.
     """
 
     def __init__(self) -> None:
@@ -89,11 +89,15 @@ class _Stop:
     def now(self) -> None:
         import psutil
 
-        for child in psutil.Process().children(recursive=True):
+        children = psutil.Process().children(recursive=True)
+        for child in children:
             try:
                 child.kill()
             except psutil.Error:
                 pass
+        # SIGKILL is delivered when the process is next scheduled: on a busy machine a kernel can still be
+        # running a moment after kill(); wait until each is gone (a child of this process is reaped here)
+        psutil.wait_procs(children, timeout=10)
         os._exit(143)
 
 

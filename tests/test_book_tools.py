@@ -282,7 +282,15 @@ def test_pre_execute_stopped_mid_page_kills_its_kernel_and_caches_nothing_half_d
     proc.send_signal(signal.SIGUSR1)
     output = proc.communicate(timeout=30)[0]
     assert proc.returncode == 143, output
-    assert not any(k.is_running() and k.status() != psutil.STATUS_ZOMBIE for k in kernels)
+
+    def alive(process):
+        try:
+            return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
+        except psutil.NoSuchProcess:
+            return False
+
+    # pre_execute waits for its kernels before it exits: none is left running, even on a busy machine
+    assert not [k for k in kernels if alive(k)], output
     assert set(json.loads(times.read_text())) == {str(tmp_path / "first")}
     assert "slow" not in output  # never reported as done
     assert os.path.exists(cache_dir)
