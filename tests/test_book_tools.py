@@ -275,10 +275,13 @@ def test_pre_execute_stopped_mid_page_kills_its_kernel_and_caches_nothing_half_d
     while time.monotonic() < deadline and not listed:  # the first page is done and listed
         time.sleep(0.2)
         listed = json.loads(times.read_text()) if times.exists() else {}
-    time.sleep(3)  # the first page's kernel has gone, the slow page's is in its sleep
-    kernels = psutil.Process(proc.pid).children(recursive=True)
     assert set(listed) == {str(tmp_path / "first")}, proc.communicate()[0]
+    while time.monotonic() < deadline and not kernels:  # the slow page's kernel has started
+        time.sleep(0.2)
+        kernels = psutil.Process(proc.pid).children(recursive=True)
     assert kernels, "the second page's kernel never started"
+    time.sleep(2)  # into its sleep (a page stopped before its kernel is up is not what this checks)
+    kernels = psutil.Process(proc.pid).children(recursive=True)
     proc.send_signal(signal.SIGUSR1)
     output = proc.communicate(timeout=30)[0]
     assert proc.returncode == 143, output

@@ -121,6 +121,7 @@ def check_bound_below_every_row(ds, entry, rows):
     assert np.all((v >= 1) & (v <= A + 1))  # never confident counts A + 1
     for m in entry["methods"].values():
         bound = m["rows"]["clairvoyant"]["views_to_confidence"]
+        assert list(m["rows"]) == rows.split(",")
         assert all(bound <= r["views_to_confidence"] for r in m["rows"].values())
 
 
@@ -293,7 +294,10 @@ def test_decompose_after_simulate_on_the_example_models(tmp_path):
     simulate = ["simulate", "--profile", "quick", "--targets", "car", "--trials", "10"]
     simulate += ["--large-trials", "0", "--n-samples", "16", "--max-draws", "4"]
     assert main(simulate + argv) == 0
-    assert main(["decompose", "--n-boot", "100", *CLI_OPTIONS, *argv]) == 0
+    # a row of each kind (the planners on the experiment's filter, the told planners' own filter, the
+    # bound): every row of the default ladder compiles its own programs, three methods over
+    rows = "random,greedy_joint,confident,pose_greedy,clairvoyant"
+    assert main(["decompose", "--n-boot", "100", "--rows", rows, *CLI_OPTIONS, *argv]) == 0
     result = json.loads((out / "decomposition.json").read_text())
     assert result["settings"]["max_draws"] == 4 and result["settings"]["n_samples"] == 16
     ds = load_trials(out / "trials.nc").sel(target="car")
@@ -312,6 +316,7 @@ def test_decompose_after_simulate_on_the_example_models(tmp_path):
             float(v.sel(planner="sampled").mean())
         )
         bound = m["rows"]["clairvoyant"]["views_to_confidence"]
+        assert list(m["rows"]) == rows.split(",")
         assert all(bound <= r["views_to_confidence"] for r in m["rows"].values())
         assert m["filter"] == name.split("+")[1]
     assert set(result["targets"]["car"]["view_information"]) == {"gaussian", "hierarchical"}
