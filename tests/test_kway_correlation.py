@@ -375,7 +375,15 @@ def test_collapsed_planner_is_the_exact_one_with_one_draw(rng):
     np.testing.assert_allclose(got["collapsed"], got["sampled"], atol=1e-5)
 
 
-@pytest.mark.parametrize("objective", ["class", "joint", "pose"])
+# the class objective (the paper's) in make test; the others (15 s each, compiling) in make test-slow
+@pytest.mark.parametrize(
+    "objective",
+    [
+        "class",
+        pytest.param("joint", marks=pytest.mark.slow),
+        pytest.param("pose", marks=pytest.mark.slow),
+    ],
+)
 def test_ring_planner_is_the_per_candidate_collapsed_planner(rng, objective):
     """The azimuth ring's table (every candidate from one set of products over the draws) against the
     collapsed planner candidate by candidate, on the same samples: several draws, elevations and
