@@ -121,7 +121,7 @@ def check_bound_below_every_row(ds, entry, rows):
     assert np.all((v >= 1) & (v <= A + 1))  # never confident counts A + 1
     for m in entry["methods"].values():
         bound = m["rows"]["clairvoyant"]["views_to_confidence"]
-        assert list(m["rows"]) == rows.split(",")
+        assert list(m["rows"]) == list(rows)
         assert all(bound <= r["views_to_confidence"] for r in m["rows"].values())
 
 
