@@ -423,7 +423,7 @@ def sampled_expected_entropy(
     """
     _check_objective(objective)
     k_state, k_response = jax.random.split(key)
-    log_w, mean, var = (x.ravel() for x in mixture)  # the K = N * O * A components
+    log_w, mean, var = (x.ravel() for x in mixture)  # the N * O * A components
     # M states k ~ p(n, o, theta | F): inverse CDF of the mixture weights
     cdf = jnp.cumsum(jnp.exp(log_w))
     u = jax.random.uniform(k_state, (n_samples,), mean.dtype)
