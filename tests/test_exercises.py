@@ -14,7 +14,7 @@ from scrppl.exercises import (
     reference_answers,
     wrong_answers,
 )
-from scrppl.exercises._core import Case, Mistake, check_function, compare, exercise
+from scrppl.exercises._core import Case, Mistake, check_function, compare, describe, exercise
 
 EXERCISES = [e.id for e in list_exercises()]
 
@@ -76,6 +76,14 @@ def test_an_exception_in_the_answer_names_the_input_and_keeps_the_cause():
         check("2.1", relative_view, reference_answers("2.1")[1])
     assert "input 1 of" in str(info.value) and "robot = 3" in str(info.value)
     assert isinstance(info.value.__cause__, AttributeError)
+
+
+def test_an_input_that_is_a_jax_key_is_described():
+    # a typed key cannot become a NumPy array; the message of a failing answer still shows it
+    import jax
+
+    assert describe(jax.random.key(7)) == "<JAX PRNG key, data [0 7]>"
+    assert "PRNG key" in Case((jax.random.key(7), 3)).describe(["key", "n"])
 
 
 def test_a_function_without_return_is_told_so():

@@ -258,6 +258,12 @@ def describe(value: Any, width: int = 300) -> str:
         return f"<xarray.DataArray dims {value.dims}> {body}"
     if pd is not None and isinstance(value, pd.DataFrame):
         return f"<DataFrame with {len(value)} rows, columns {list(value.columns)}>"
+    if type(value).__module__.startswith("jax") and _is_prng_key(value):
+        # a typed PRNG key (jax.random.key) cannot become a NumPy array: show its key data
+        import jax
+
+        data = np.asarray(jax.random.key_data(value))
+        return f"<JAX PRNG key, data {np.array2string(data, threshold=12)}>"
     if isinstance(value, np.ndarray) or type(value).__module__.startswith("jax"):
         arr = np.asarray(value)
         if arr.ndim == 0:
@@ -273,6 +279,14 @@ def describe(value: Any, width: int = 300) -> str:
         return f"{type(value).__name__}(\n      {parts})"
     text = repr(value)
     return text if len(text) <= width else text[: width - 5] + " ...>"
+
+
+def _is_prng_key(value: Any) -> bool:
+    """Whether ``value`` is a typed JAX PRNG key array (made by ``jax.random.key``)."""
+    import jax
+
+    dtype = getattr(value, "dtype", None)
+    return dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
 
 
 def _summary(arr: np.ndarray) -> str:

@@ -1,11 +1,13 @@
 """Checks for the exercises of chapter 8 (planning where to look).
 
 The entropy of the belief after a hypothetical response and the plug-in shortcut, the expected posterior
-entropy of a candidate view (the paper's eq. 5) by sampling and by Gauss-Hermite quadrature, the price
-per bin at which a planner that pays for travel leaves its favourite view, and the information gain of a
-view. Every reference is :mod:`scrppl.planning`, except that of 8.4, a closed form the library lacks,
-checked against the library's decision rule (:func:`scrppl.planning.select_view`); the planners see the
-filter only through its predictive mixture (:func:`scrppl.belief.predictive_mixture`).
+entropy of a candidate view (the paper's eq. 5) by plain and stratified sampling and by Gauss-Hermite
+quadrature, the price per bin at which a planner that pays for travel leaves its favourite view, and the
+information gain of a view. Every reference is :mod:`scrppl.planning`, except that of 8.4, a closed form
+the library lacks, checked against the library's decision rule (:func:`scrppl.planning.select_view`), and
+the stratified estimator of 8.2, which the library's planners do not use, checked against the exact value
+(:func:`scrppl.planning.quadrature_expected_entropy`) and the error of plain sampling. The planners see
+the filter only through its predictive mixture (:func:`scrppl.belief.predictive_mixture`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from scipy.special import logsumexp
 
 from scrppl.exercises._core import (
     Case,
+    ExerciseNotAnswered,
     Mistake,
     call,
     check_function,
@@ -302,12 +305,36 @@ def check_8_1(entropy_after, plug_in_entropy) -> str:
     return f"agrees with scrppl.planning on {n} + {m} inputs"
 
 
-# -- 8.2 eq. 5 by sampling --------------------------------------------------------------------------
+# -- 8.2 eq. 5 by sampling, plain and stratified ----------------------------------------------------
 #: Samples per estimate in the check of exercise 8.2, and the tolerance in Monte Carlo standard errors.
 N_SAMPLES = 2000
 _N_SE = 5.0
 #: Gauss-Hermite order of the exact values in the check of exercise 8.2 (and of two inputs of 8.3).
 _ORDER = 32
+#: The stratified estimator of exercise 8.2 on its own input: estimates from this many keys, of this many
+#: samples each; their root mean square error must stay below this fraction of plain sampling's.
+_N_KEYS = 40
+_M_SMALL = 12
+_MAX_RMS_RATIO = 0.6
+
+
+def _entropy_moments(mix) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """The exact expected entropy, the sd of one sample's entropy, per-component entropies, weights.
+
+    Returns ``(exact, sd, h_comp, wk)``: ``h_comp`` is each component's mean entropy after its response
+    (Gauss-Hermite, ``(K,)``) and ``wk`` the component weights. The exact value is the library's
+    quadrature (:func:`_quadrature_ref`); ``sd`` (for the Monte Carlo standard error of plain sampling)
+    comes from the same nodes.
+    """
+    x, w = np.polynomial.hermite.hermgauss(_ORDER)
+    w = w / math.sqrt(math.pi)
+    lw, mean, var = _np_mixture(mix)
+    f = mean.ravel()[:, None] + np.sqrt(2.0 * var.ravel())[:, None] * x  # (K, Q) nodes
+    h = np.asarray(_entropy_np(mix, f), float)  # (K, Q)
+    wk = np.exp(lw.ravel())
+    exact = _quadrature_ref(mix, _ORDER)  # the library's value
+    second = float(np.sum(wk * ((h**2) @ w)))  # E[H^2]
+    return exact, math.sqrt(max(second - exact**2, 0.0)), h @ w, wk
 
 
 @functools.lru_cache(maxsize=1)
@@ -318,21 +345,15 @@ def _exact_values() -> tuple[dict, ...]:
     exercise 8.2.
     """
     out = []
-    x, w = np.polynomial.hermite.hermgauss(_ORDER)
-    w = w / math.sqrt(math.pi)
     for mix, _ in _mixture_args():
-        lw, mean, var = _np_mixture(mix)
-        f = mean.ravel()[:, None] + np.sqrt(2.0 * var.ravel())[:, None] * x  # (K, Q) nodes
-        h = np.asarray(_entropy_np(mix, f), float)  # (K, Q)
-        wk = np.exp(lw.ravel())
-        exact = _quadrature_ref(mix, _ORDER)  # the library's value
-        second = float(np.sum(wk * ((h**2) @ w)))  # E[H^2], for the Monte Carlo standard error
+        exact, sd, h_comp, wk = _entropy_moments(mix)
+        _, mean, _ = _np_mixture(mix)
         out.append(
             {
                 "exact": exact,
-                "sd": math.sqrt(max(second - exact**2, 0.0)),
+                "sd": sd,
                 "plug-in": _plug_in_np(mix),
-                "uniform": float(np.mean(h @ w)),
+                "uniform": float(np.mean(h_comp)),
                 "no-noise": float(np.sum(wk * np.asarray(_entropy_np(mix, mean.ravel())))),
             }
         )
@@ -350,11 +371,23 @@ _SAMPLED_HINTS = {
 }
 
 
-def _draw(key, mixture, n_samples, uniform=False, noise=True):
+def _draw(key, mixture, n_samples, uniform=False, noise=True, strata=""):
+    """Responses from the mixture: components by inverse CDF, then their normals.
+
+    ``strata``: ``""`` (plain uniforms), ``"random"`` (one uniform in each stratum ``[i/M, (i+1)/M)``),
+    or the mistakes ``"midpoint"`` (``(i + 1/2)/M``) and ``"no_divide"`` (``i/M + U_i``).
+    """
     lw, mean, var = _np_mixture(mixture)
     k1, k2 = jax.random.split(key)
     cdf = np.cumsum(np.ones(lw.size) if uniform else np.exp(lw.ravel()))
     u = np.asarray(jax.random.uniform(k1, (n_samples,)))
+    i = np.arange(n_samples)
+    if strata == "random":
+        u = (i + u) / n_samples
+    elif strata == "midpoint":
+        u = (i + 0.5) / n_samples
+    elif strata == "no_divide":
+        u = i / n_samples + u
     comp = np.minimum(np.searchsorted(cdf, u * cdf[-1], side="right"), cdf.size - 1)
     eps = np.asarray(jax.random.normal(k2, (n_samples,))) if noise else 0.0
     return mean.ravel()[comp] + np.sqrt(var.ravel()[comp]) * eps
@@ -380,31 +413,104 @@ def _sampled_plug_in(key, mixture, n_samples):
     return _plug_in_np(mixture)
 
 
-@exercise(
-    "8.2",
-    "Eq. 5 by sampling",
-    "medium",
-    reference=lambda: (_sampled_ref,),
-    wrong=lambda: [(_sampled_uniform,), (_sampled_no_noise,), (_sampled_plug_in,)],
-)
-def check_8_2(expected_entropy_sampled) -> str:
-    """Check exercise 8.2.
+def _stratified_ref(key, mixture, n_samples):
+    """A correct stratified answer: the uniform that picks sample ``i``'s component lies in ``[i/M, (i+1)/M)``.
 
-    ``expected_entropy_sampled(key, mixture, n_samples)`` must agree with
-    :func:`scrppl.planning.quadrature_expected_entropy` (the exact value) within five Monte Carlo
-    standard errors, give the same value for the same key and different values for different keys.
+    The library's planners sample plainly (:func:`scrppl.planning.sampled_expected_entropy`), so there is
+    no library reference: the check compares the answer with the exact value
+    (:func:`scrppl.planning.quadrature_expected_entropy`) and its error with plain sampling's.
     """
-    name = "expected_entropy_sampled(key, mixture, n_samples)"
-    _probe(expected_entropy_sampled, name, jax.random.key(0), _tiny_mixture(), 2)
+    return float(np.mean(_entropy_np(mixture, _draw(key, mixture, n_samples, strata="random"))))
+
+
+def _stratified_midpoint(key, mixture, n_samples):
+    return float(np.mean(_entropy_np(mixture, _draw(key, mixture, n_samples, strata="midpoint"))))
+
+
+def _stratified_no_divide(key, mixture, n_samples):
+    return float(np.mean(_entropy_np(mixture, _draw(key, mixture, n_samples, strata="no_divide"))))
+
+
+def _rounded_counts(mixture, n_samples):
+    return np.rint(n_samples * np.exp(_np_mixture(mixture)[0].ravel())).astype(int)
+
+
+def _stratified_rounded(key, mixture, n_samples):
+    """The mistake: ``round(M w_k)`` responses from each component, pooled in one plain average."""
+    _, mean, var = (x.ravel() for x in _np_mixture(mixture))
+    comp = np.repeat(np.arange(mean.size), _rounded_counts(mixture, n_samples))
+    eps = np.asarray(jax.random.normal(key, (comp.size,)))
+    return float(np.mean(_entropy_np(mixture, mean[comp] + np.sqrt(var[comp]) * eps)))
+
+
+@functools.lru_cache(maxsize=1)
+def _spread_case() -> dict:
+    """The stratified estimator's own input: a mixture whose components disagree about the entropy.
+
+    Shape ``(1, 2, 8)`` (as the first mixture case: one compilation of the library's quadrature). Four
+    groups of states whose components predict the same response, far apart: a response tells which group
+    it came from and nothing more, so the entropy after it depends almost only on the component (the
+    number of states in its group) and plain sampling's variance is nearly all between components, which
+    stratifying the component choice removes. Also the exact values of the biased mistakes (midpoints,
+    counts rounded to ``round(M w_k)``) at ``M = _M_SMALL``.
+    """
+    from scrppl.belief import Mixture
+
+    groups = [(0, slice(0, 8), 0.40, 0.0), (1, slice(0, 1), 0.35, 4.0)]
+    groups += [(1, slice(1, 4), 0.15, 8.0), (1, slice(4, 8), 0.10, 12.0)]
+    w, mean = np.zeros((1, 2, 8)), np.zeros((1, 2, 8))
+    for o, states, weight, mu in groups:
+        w[0, o, states] = weight / len(range(8)[states])
+        mean[0, o, states] = mu
+    var = np.full(w.shape, 0.6**2)
+    mix = Mixture(*(jnp.asarray(x, jnp.float32) for x in (np.log(w), mean, var)))
+    exact, sd, h_comp, wk = _entropy_moments(mix)
+    m = _M_SMALL
+    cdf = np.cumsum(wk)
+    mid = np.minimum(
+        np.searchsorted(cdf, (np.arange(m) + 0.5) / m * cdf[-1], side="right"), cdf.size - 1
+    )
+    counts = _rounded_counts(mix, m)
+    label = (
+        "hand-made mixture (1, 2, 8): four groups of states whose components predict the same "
+        "response, N(0, 0.6^2), N(4, 0.6^2), N(8, 0.6^2) and N(12, 0.6^2), of 8, 1, 3 and 4 states and "
+        "weights 0.4, 0.35, 0.15 and 0.1"
+    )
+    return {
+        "mixture": mix,
+        "label": label,
+        "exact": exact,
+        "sd": sd,
+        "midpoint": float(np.mean(h_comp[mid])),
+        "rounded": float(np.sum(counts * h_comp) / counts.sum()),
+    }
+
+
+_STRATIFIED_HINTS = {
+    "midpoint": "the midpoints (i + 1/2)/M fix which components are drawn, and how often: the estimate "
+    "is then biased whenever M w_k is not a whole number. Draw sample i's uniform at random in its "
+    "stratum, u_i = (i + U_i)/M with U_i ~ U(0, 1) (jax.random.uniform(key, (M,))).",
+    "rounded": "round(M w_k) responses per component, averaged together, give component k the weight "
+    "round(M w_k) / sum_j round(M w_j) instead of w_k (a component with M w_k < 1/2 gets none). Stratify "
+    "the uniforms, u_i = (i + U_i)/M, or weigh each component's average by w_k.",
+}
+
+
+def _check_close(fn, name: str, first_key: int, generic_hint: str) -> None:
+    """Fail unless ``fn(key, mixture, N_SAMPLES)`` is close to the exact value on every mixture case.
+
+    Close: within five plain Monte Carlo standard errors; also reproducible for a key and different for
+    another key.
+    """
     names = ["key", "mixture", "n_samples"]
     exact = _exact_values()
     cases = _mixture_args()
-    values = []
+    first = None
     for i, ((mix, label), ref) in enumerate(zip(cases, exact, strict=True)):
         where = f"{i + 1} of {len(cases)}"
-        key = jax.random.key(100 + i)
-        case = Case((key, mix, N_SAMPLES), f"{label}; key = jax.random.key({100 + i})")
-        got = call(expected_entropy_sampled, name, case, where=where, arg_names=names)
+        k = first_key + i
+        case = Case((jax.random.key(k), mix, N_SAMPLES), f"{label}; key = jax.random.key({k})")
+        got = call(fn, name, case, where=where, arg_names=names)
         if got is None:
             fail(f"`{name}` returned None on input {where}: did you forget the `return` statement?")
         got = float(np.asarray(got))
@@ -412,50 +518,145 @@ def check_8_2(expected_entropy_sampled) -> str:
         if not abs(got - ref["exact"]) <= tol:
             lines = [
                 f"`{name}` is too far from the exact expected entropy on input {where} ({label}), "
-                f"with n_samples = {N_SAMPLES} and key = jax.random.key({100 + i}):",
+                f"with n_samples = {N_SAMPLES} and key = jax.random.key({k}):",
                 f"  got {got:.4f} nats; the exact value (Gauss-Hermite quadrature, "
                 f"scrppl.planning.quadrature_expected_entropy) is {ref['exact']:.4f}, and an "
                 f"estimate from {N_SAMPLES} samples should lie within {tol:.4f} of it "
                 f"({_N_SE:g} Monte Carlo standard errors).",
             ]
             near = [k for k in _SAMPLED_HINTS if abs(got - ref[k]) <= tol]
-            if near:
-                lines.append(f"Hint: {_SAMPLED_HINTS[near[0]]}")
-            else:
-                lines.append(
-                    "Hint: draw M components (n, o, theta) with probabilities exp(log_weight), a "
-                    "response from each one's normal, and average the entropies of the posteriors "
-                    "after each response (your entropy_after of exercise 8.1)."
-                )
+            lines.append(f"Hint: {_SAMPLED_HINTS[near[0]] if near else generic_hint}")
             fail("\n".join(lines))
-        again = float(
-            np.asarray(call(expected_entropy_sampled, name, case, where=where, arg_names=names))
-        )
+        again = float(np.asarray(call(fn, name, case, where=where, arg_names=names)))
         if not math.isclose(again, got, rel_tol=1e-9, abs_tol=1e-12):
             fail(
                 f"`{name}` is not reproducible: called twice with the same key on input {where} "
                 f"({label}) it gave {got:.6f} and {again:.6f}. Draw every random number from `key` "
-                "(jax.random.split, jax.random.categorical, jax.random.normal), never from a global "
+                "(jax.random.split, jax.random.uniform, jax.random.normal), never from a global "
                 "generator."
             )
-        values.append(got)
+        first = got if first is None else first
+    k = first_key + 50
     other = Case(
-        (jax.random.key(7), cases[0][0], N_SAMPLES), f"{cases[0][1]}; key = jax.random.key(7)"
+        (jax.random.key(k), cases[0][0], N_SAMPLES), f"{cases[0][1]}; key = jax.random.key({k})"
     )
-    second = float(
-        np.asarray(
-            call(expected_entropy_sampled, name, other, where=f"1 of {len(cases)}", arg_names=names)
-        )
-    )
-    if second == values[0]:
+    second = float(np.asarray(call(fn, name, other, where=f"1 of {len(cases)}", arg_names=names)))
+    if second == first:
         fail(
-            f"`{name}` gives the same value {second:.6f} for the keys jax.random.key(100) and "
-            f"jax.random.key(7) on input 1 of {len(cases)} ({cases[0][1]}): the estimate must be "
+            f"`{name}` gives the same value {second:.6f} for the keys jax.random.key({first_key}) and "
+            f"jax.random.key({k}) on input 1 of {len(cases)} ({cases[0][1]}): the estimate must be "
             "random, drawn with `key` (Monte Carlo), not a deterministic formula."
         )
+
+
+def _check_stratified_error(fn, name: str) -> float:
+    """Unbiased, and clearly more accurate than plain sampling, on :func:`_spread_case`.
+
+    Returns the ratio of the answer's root mean square error to plain sampling's (``sd / sqrt(M)``).
+    """
+    spread = _spread_case()
+    mix, label, m = spread["mixture"], spread["label"], _M_SMALL
+    n_inputs = len(_mixture_args())
+    where = f"{n_inputs + 1} of {n_inputs + 1}"
+    keys = f"the keys jax.random.key(300), ..., jax.random.key({300 + _N_KEYS - 1})"
+    values = []
+    for j in range(_N_KEYS):
+        case = Case((jax.random.key(300 + j), mix, m), f"{label}; key = jax.random.key({300 + j})")
+        got = call(fn, name, case, where=where, arg_names=["key", "mixture", "n_samples"])
+        values.append(float(np.asarray(got)))
+    v = np.array(values)
+    head = (
+        f"`{name}` on input {where} ({label}), with n_samples = {m} and {keys}:\n"
+        f"  the exact expected entropy is {spread['exact']:.4f} nats"
+    )
+    if not np.all(np.isfinite(v)):
+        fail(
+            f"{head}, but {int(np.sum(~np.isfinite(v)))} of your {_N_KEYS} estimates are not finite."
+        )
+    se = float(v.std(ddof=1)) / math.sqrt(_N_KEYS)
+    tol = _N_SE * se + 5e-4
+    if not abs(v.mean() - spread["exact"]) <= tol:
+        near = [k for k in _STRATIFIED_HINTS if abs(v.mean() - spread[k]) <= tol]
+        hint = (
+            _STRATIFIED_HINTS[near[0]]
+            if near
+            else "stratified sampling is unbiased only if each stratum's uniform is uniform on it: "
+            "u_i = (i + U_i)/M for i = 0, ..., M-1, each component then chosen from u_i by the inverse "
+            "CDF of the weights exactly as in part 1."
+        )
+        fail(
+            f"{head}; the mean of your {_N_KEYS} estimates is {v.mean():.4f}, more than {tol:.4f} "
+            f"({_N_SE:g} standard errors of that mean) away: the estimator is biased.\nHint: {hint}"
+        )
+    rms = float(np.sqrt(np.mean((v - spread["exact"]) ** 2)))
+    plain = spread["sd"] / math.sqrt(m)
+    if not rms <= _MAX_RMS_RATIO * plain:
+        fail(
+            f"{head}; the root mean square error of your {_N_KEYS} estimates is {rms:.4f} nats, "
+            f"against {plain:.4f} for plain sampling (part 1) with the same M: stratification should "
+            f"cut it well below {_MAX_RMS_RATIO:g} times that here, where the entropy after a response "
+            "depends almost only on its component.\nHint: draw the M uniforms that pick the components "
+            "one per stratum, u_i = (i + U_i)/M, so that every component gets about M w_k of the "
+            "samples; independent uniforms, sorted or not, are plain sampling."
+        )
+    return rms / plain
+
+
+@exercise(
+    "8.2",
+    "Eq. 5 by sampling, plain and stratified",
+    "medium",
+    reference=lambda: (_sampled_ref, _stratified_ref),
+    wrong=lambda: [
+        (_sampled_uniform, _stratified_ref),
+        (_sampled_no_noise, _stratified_ref),
+        (_sampled_plug_in, _stratified_ref),
+        (_sampled_ref, _sampled_ref),  # "stratified" with independent uniforms: plain sampling
+        (_sampled_ref, _stratified_midpoint),
+        (_sampled_ref, _stratified_rounded),
+        (_sampled_ref, _stratified_no_divide),
+    ],
+)
+def check_8_2(expected_entropy_sampled, expected_entropy_stratified) -> str:
+    """Check exercise 8.2.
+
+    ``expected_entropy_sampled(key, mixture, n_samples)`` must agree with
+    :func:`scrppl.planning.quadrature_expected_entropy` (the exact value) within five Monte Carlo
+    standard errors, give the same value for the same key and different values for different keys.
+    ``expected_entropy_stratified(key, mixture, n_samples)`` must do the same and, on a mixture whose
+    components disagree (:func:`_spread_case`), be unbiased over 40 keys at ``M = 12`` with a root mean
+    square error below 0.6 times plain sampling's.
+    """
+    name = "expected_entropy_sampled(key, mixture, n_samples)"
+    _probe(expected_entropy_sampled, name, jax.random.key(0), _tiny_mixture(), 2)
+    _check_close(
+        expected_entropy_sampled,
+        name,
+        100,
+        "draw M components (n, o, theta) with probabilities exp(log_weight), a response from each "
+        "one's normal, and average the entropies of the posteriors after each response (your "
+        "entropy_after of exercise 8.1).",
+    )
+    name = "expected_entropy_stratified(key, mixture, n_samples)"
+    try:
+        _probe(expected_entropy_stratified, name, jax.random.key(0), _tiny_mixture(), 2)
+    except ExerciseNotAnswered as err:
+        raise ExerciseNotAnswered(f"`expected_entropy_sampled` passes (part 1). {err}") from None
+    _check_close(
+        expected_entropy_stratified,
+        name,
+        200,
+        "sample i's component comes from the uniform u_i = (i + U_i)/M (one per stratum "
+        "[i/M, (i+1)/M), i = 0, ..., M-1) by the inverse CDF of the weights, its response from the "
+        "component's normal; average the entropies after the M responses.",
+    )
+    ratio = _check_stratified_error(expected_entropy_stratified, name)
+    n = len(_mixture_args())
     return (
-        f"within {_N_SE:g} Monte Carlo standard errors of scrppl.planning.quadrature_expected_entropy "
-        f"on {len(cases)} mixtures; reproducible for a key, random across keys"
+        f"both within {_N_SE:g} Monte Carlo standard errors of "
+        f"scrppl.planning.quadrature_expected_entropy on {n} mixtures, reproducible for a key and "
+        f"random across keys; the stratified one unbiased over {_N_KEYS} keys on a mixture whose "
+        f"components disagree, with {ratio:.2f} times plain sampling's error there"
     )
 
 
